@@ -1,0 +1,149 @@
+//! B-spline basis functions and their derivatives (The NURBS Book, A2.2 and A2.3).
+//!
+//! Both functions write into a caller's slice and keep their scratch space on the stack, so a
+//! hot loop evaluates them without allocating.
+
+use super::knots::{KnotVector, MAX_DEGREE};
+use crate::Real;
+
+/// The `p + 1` basis functions `N_{i−p,p}(u), …, N_{i,p}(u)` that can be non-zero on span `i`
+/// (The NURBS Book A2.2, the Cox–de Boor recursion in triangular form).
+///
+/// `span` must be the span of `u` ([`KnotVector::span`]); `out[r]` receives `N_{span−p+r,p}(u)`.
+/// The values are non-negative and sum to 1 (partition of unity).
+///
+/// # Panics
+/// If `out.len() < degree + 1`. A wrong `span` gives wrong values (checked in debug builds).
+///
+/// # Examples
+///
+/// ```
+/// use splineface::bspline::{basis_functions, KnotVector};
+///
+/// let knots = KnotVector::clamped_uniform(2, 3, 0.0, 1.0)?; // one quadratic Bézier span
+/// let u = 0.25;
+/// let span = knots.span(u).unwrap();
+/// let mut n = [0.0; 3];
+/// basis_functions(&knots, span, u, &mut n);
+/// // Bernstein polynomials: (1−u)², 2u(1−u), u².
+/// assert_eq!(n, [0.5625, 0.375, 0.0625]);
+/// # Ok::<(), splineface::bspline::BSplineError>(())
+/// ```
+#[inline]
+pub fn basis_functions(knots: &KnotVector, span: usize, u: Real, out: &mut [Real]) {
+    let p = knots.degree();
+    let k = knots.knots();
+    debug_assert!(span >= p && span < knots.num_control_points());
+    debug_assert!(k[span] <= u && (u < k[span + 1] || span + 1 == knots.num_control_points()));
+    let out = &mut out[..=p];
+    let mut left = [0.0; MAX_DEGREE + 1];
+    let mut right = [0.0; MAX_DEGREE + 1];
+    out[0] = 1.0;
+    for j in 1..=p {
+        left[j] = u - k[span + 1 - j];
+        right[j] = k[span + j] - u;
+        let mut saved = 0.0;
+        for r in 0..j {
+            // The denominator is u_{span+r+1} − u_{span+r+1−j} ≥ u_{span+1} − u_span > 0.
+            let temp = out[r] / (right[r + 1] + left[j - r]);
+            out[r] = saved + right[r + 1] * temp;
+            saved = left[j - r] * temp;
+        }
+        out[j] = saved;
+    }
+}
+
+/// The basis functions on span `span` and their derivatives up to `order` (The NURBS Book
+/// A2.3).
+///
+/// `out` is `(order + 1) × (p + 1)`, row-major: `out[k·(p+1) + r]` receives the `k`-th
+/// derivative `N⁽ᵏ⁾_{span−p+r,p}(u)`. Derivatives of order above `p` are zero.
+///
+/// # Panics
+/// If `out.len() < (order + 1)·(degree + 1)`.
+///
+/// # Examples
+///
+/// ```
+/// use splineface::bspline::{basis_derivatives, KnotVector};
+///
+/// let knots = KnotVector::clamped_uniform(2, 3, 0.0, 1.0)?;
+/// let mut d = [0.0; 9];
+/// basis_derivatives(&knots, knots.span(0.25).unwrap(), 0.25, 2, &mut d);
+/// // d/du of (1−u)², 2u(1−u), u² at u = 1/4, then the second derivatives 2, −4, 2.
+/// assert_eq!(&d[3..6], &[-1.5, 1.0, 0.5]);
+/// assert_eq!(&d[6..9], &[2.0, -4.0, 2.0]);
+/// # Ok::<(), splineface::bspline::BSplineError>(())
+/// ```
+pub fn basis_derivatives(knots: &KnotVector, span: usize, u: Real, order: usize, out: &mut [Real]) {
+    let p = knots.degree();
+    let k = knots.knots();
+    let w = p + 1;
+    let out = &mut out[..(order + 1) * w];
+    debug_assert!(span >= p && span < knots.num_control_points());
+
+    // ndu: upper triangle holds basis functions of rising degree, lower triangle knot differences.
+    let mut ndu = [[0.0; MAX_DEGREE + 1]; MAX_DEGREE + 1];
+    let mut left = [0.0; MAX_DEGREE + 1];
+    let mut right = [0.0; MAX_DEGREE + 1];
+    ndu[0][0] = 1.0;
+    for j in 1..=p {
+        left[j] = u - k[span + 1 - j];
+        right[j] = k[span + j] - u;
+        let mut saved = 0.0;
+        for r in 0..j {
+            ndu[j][r] = right[r + 1] + left[j - r];
+            let temp = ndu[r][j - 1] / ndu[j][r];
+            ndu[r][j] = saved + right[r + 1] * temp;
+            saved = left[j - r] * temp;
+        }
+        ndu[j][j] = saved;
+    }
+    for (j, o) in out[..w].iter_mut().enumerate() {
+        *o = ndu[j][p];
+    }
+    out[w..].fill(0.0);
+    let top = order.min(p);
+    if top == 0 {
+        return;
+    }
+
+    let p_i = p as isize;
+    let mut a = [[0.0; MAX_DEGREE + 1]; 2];
+    for r in 0..=p {
+        let r_i = r as isize;
+        let (mut s1, mut s2) = (0usize, 1usize);
+        a[0][0] = 1.0;
+        for kk in 1..=top {
+            let k_i = kk as isize;
+            let mut d = 0.0;
+            let rk = r_i - k_i;
+            let pk = (p_i - k_i) as usize;
+            if rk >= 0 {
+                a[s2][0] = a[s1][0] / ndu[pk + 1][rk as usize];
+                d = a[s2][0] * ndu[rk as usize][pk];
+            }
+            let j1 = if rk >= -1 { 1 } else { (-rk) as usize };
+            let j2 = if r_i - 1 <= pk as isize { kk - 1 } else { p - r };
+            for j in j1..=j2 {
+                let idx = (rk + j as isize) as usize;
+                a[s2][j] = (a[s1][j] - a[s1][j - 1]) / ndu[pk + 1][idx];
+                d += a[s2][j] * ndu[idx][pk];
+            }
+            if r <= pk {
+                a[s2][kk] = -a[s1][kk - 1] / ndu[pk + 1][r];
+                d += a[s2][kk] * ndu[r][pk];
+            }
+            out[kk * w + r] = d;
+            std::mem::swap(&mut s1, &mut s2);
+        }
+    }
+    // Multiply by p!/(p−k)!.
+    let mut factor = p as Real;
+    for kk in 1..=top {
+        for o in &mut out[kk * w..(kk + 1) * w] {
+            *o *= factor;
+        }
+        factor *= (p - kk) as Real;
+    }
+}

@@ -1,0 +1,34 @@
+//! # splineface
+//!
+//! Smooth 3D faces from a handful of ordinary, uncalibrated photos of one person, after Peng,
+//! Xu & Feng, *3D face modeling based on structure optimization and surface reconstruction with
+//! B-Spline* (Neurocomputing 179, 2016): a C² B-spline surface, clipped triangle meshes and
+//! depth maps.
+//!
+//! ## A tour
+//!
+//! * [`bspline`]: the geometry kernel. [`bspline::KnotVector`], the basis functions,
+//!   [`bspline::BSplineSurface`] (evaluation, derivatives, normals, dense grids, the sparse
+//!   basis matrix, affine maps, JSON) and [`bspline::SurfaceFit`] (least-squares control grids
+//!   from up to millions of scattered samples).
+//!
+//! The face front ends (the 40-point structure, photo alignment, depth estimation) feed the
+//! kernel a transform; they are built on top of it.
+//!
+//! ## Conventions
+//!
+//! All geometry is `f64` ([`Real`]) over nalgebra types. Control grids are flat and row-major.
+//! Degrees, never orders: a B-spline of degree `p` with `n` control points has
+//! `n + p + 1` knots.
+//!
+//! ## Cargo features
+//!
+//! None yet: everything is always built.
+
+#![forbid(unsafe_code)]
+#![warn(missing_docs)]
+
+pub mod bspline;
+
+/// The scalar type of all geometry.
+pub type Real = f64;

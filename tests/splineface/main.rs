@@ -1,0 +1,11 @@
+//! Integration tests, one binary with a module per concern.
+
+// Index loops mirror the formulas they check (Σᵢ Σⱼ …), which reads better than zips here.
+#![allow(clippy::needless_range_loop)]
+
+mod bspline_basis;
+mod bspline_fit;
+mod bspline_knots;
+mod bspline_serde;
+mod bspline_surface;
+mod common;
