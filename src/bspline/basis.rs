@@ -29,28 +29,58 @@ use crate::Real;
 /// assert_eq!(n, [0.5625, 0.375, 0.0625]);
 /// # Ok::<(), splineface::bspline::BSplineError>(())
 /// ```
-#[inline]
 pub fn basis_functions(knots: &KnotVector, span: usize, u: Real, out: &mut [Real]) {
     let p = knots.degree();
-    let k = knots.knots();
+    out[..=p].copy_from_slice(&basis_fixed::<RUNTIME>(knots, span, u)[..=p]);
+}
+
+/// The const width that means "read the degree at run time": arrays of this size hold the
+/// basis of any supported degree.
+pub(crate) const RUNTIME: usize = MAX_DEGREE + 1;
+
+/// The width `p + 1` of a basis evaluation: the constant `N` when the caller fixed it at
+/// compile time, else (`N = RUNTIME`) read from the degree.
+#[inline(always)]
+pub(crate) fn width<const N: usize>(degree: usize) -> usize {
+    if N == RUNTIME { degree + 1 } else { N }
+}
+
+/// [`basis_functions`] for the kernel's hot loops, returning `[Real; N]` with `N = p + 1` fixed
+/// at compile time where the caller knows it (the loops then unroll and the values stay in
+/// registers), or `N = RUNTIME` to read the degree at run time. Divisions are replaced by the
+/// knot vector's cached reciprocals.
+#[inline(always)]
+pub(crate) fn basis_fixed<const N: usize>(knots: &KnotVector, span: usize, u: Real) -> [Real; N] {
+    let p = width::<N>(knots.degree()) - 1;
+    debug_assert_eq!(p, knots.degree());
     debug_assert!(span >= p && span < knots.num_control_points());
-    debug_assert!(k[span] <= u && (u < k[span + 1] || span + 1 == knots.num_control_points()));
-    let out = &mut out[..=p];
-    let mut left = [0.0; MAX_DEGREE + 1];
-    let mut right = [0.0; MAX_DEGREE + 1];
+    debug_assert!({
+        let k = knots.knots();
+        k[span] <= u && (u < k[span + 1] || span + 1 == knots.num_control_points())
+    });
+    // k[p + d] is u_{span+d}, for d in −p..=p; one bounds check here instead of one per access.
+    let k = &knots.knots()[span - p..span + p + 1];
+    let inverse = &knots.inverse_denominators(span)[..p * (p + 1) / 2];
+    let mut out = [0.0; N];
+    let mut left = [0.0; N];
+    let mut right = [0.0; N];
     out[0] = 1.0;
-    for j in 1..=p {
-        left[j] = u - k[span + 1 - j];
-        right[j] = k[span + j] - u;
+    let mut at = 0;
+    // Exclusive ranges: LLVM unrolls `a..b` loops of constant trip count, not always `a..=b`.
+    for j in 1..p + 1 {
+        left[j] = u - k[p + 1 - j];
+        right[j] = k[p + j] - u;
         let mut saved = 0.0;
         for r in 0..j {
-            // The denominator is u_{span+r+1} − u_{span+r+1−j} ≥ u_{span+1} − u_span > 0.
-            let temp = out[r] / (right[r + 1] + left[j - r]);
+            // out[r] / (u_{span+r+1} − u_{span+r+1−j}); the denominator is ≥ u_{span+1} − u_span > 0.
+            let temp = out[r] * inverse[at + r];
             out[r] = saved + right[r + 1] * temp;
             saved = left[j - r] * temp;
         }
+        at += j;
         out[j] = saved;
     }
+    out
 }
 
 /// The basis functions on span `span` and their derivatives up to `order` (The NURBS Book

@@ -3,11 +3,11 @@
 use nalgebra::Point3;
 use rayon::prelude::*;
 
+use super::BSplineError;
 use super::band::SymmetricBand;
-use super::basis::basis_functions;
-use super::knots::{KnotVector, MAX_DEGREE};
-use super::surface::BSplineSurface;
-use super::{BSplineError, Direction};
+use super::basis::{basis_fixed, width};
+use super::knots::KnotVector;
+use super::surface::{BSplineSurface, check_parameter};
 use crate::Real;
 
 /// The largest banded normal matrix (in stored entries) a fit may build: 2²⁸ entries, 2 GiB.
@@ -150,7 +150,7 @@ impl<'a> SurfaceFit<'a> {
             });
         }
 
-        let cells = self.accumulate(params, points);
+        let cells = self.accumulate(params, points)?;
         let (mut normal, mut rhs) = layout.assemble(&cells);
         let total_weight = self.weights.map_or(points.len() as Real, |w| w.iter().sum());
         if self.smoothness > 0.0 {
@@ -221,61 +221,79 @@ impl<'a> SurfaceFit<'a> {
         {
             return Err(BSplineError::NonFiniteSample { index });
         }
-        for (index, &[u, v]) in params.iter().enumerate() {
-            let bad = |source: BSplineError| BSplineError::InvalidSampleParameter {
-                index,
-                source: Box::new(source),
-            };
-            if !(u.is_finite() && v.is_finite()) {
-                return Err(bad(BSplineError::NonFiniteParameter { u, v }));
-            }
-            for (knots, direction, value) in
-                [(&self.knots_u, Direction::U, u), (&self.knots_v, Direction::V, v)]
-            {
-                if knots.span(value).is_none() {
-                    let (start, end) = knots.domain();
-                    return Err(bad(BSplineError::ParameterOutOfDomain {
-                        direction,
-                        value,
-                        start,
-                        end,
-                    }));
-                }
-            }
-        }
         Ok(())
     }
 
-    /// Per-cell sums of the normal-equation terms, accumulated in a fixed number of blocks
-    /// (chosen from the input sizes only, so the sums are the same on any number of threads)
-    /// and added block by block in order.
-    fn accumulate(&self, params: &[[Real; 2]], points: &[Point3<Real>]) -> CellSums {
-        let shape = CellShape::new(&self.knots_u, &self.knots_v);
-        let bytes_per_accumulator = shape.len() * std::mem::size_of::<Real>();
-        const MIN_SAMPLES_PER_BLOCK: usize = 1 << 14;
-        const MAX_BLOCK_BYTES: usize = 256 << 20;
-        let blocks = (params.len() / MIN_SAMPLES_PER_BLOCK)
-            .min(MAX_BLOCK_BYTES / bytes_per_accumulator.max(1))
-            .clamp(1, 8);
-        let block_len = params.len().div_ceil(blocks);
-        let partial: Vec<CellSums> = params
-            .par_chunks(block_len)
-            .zip(points.par_chunks(block_len))
+    /// The knot cell of every sample, `(su − p)·cells_v + (sv − q)`, or the error for the first
+    /// sample whose parameter is invalid.
+    fn locate(&self, params: &[[Real; 2]], shape: &CellShape) -> Result<Vec<u32>, BSplineError> {
+        params
+            .iter()
             .enumerate()
-            .map(|(b, (par, pts))| {
-                let w = self.weights.map(|w| &w[b * block_len..b * block_len + par.len()]);
-                let mut sums = CellSums::zeros(shape);
-                sums.add_samples(&self.knots_u, &self.knots_v, par, pts, w);
-                sums
+            .map(|(index, &[u, v])| {
+                check_parameter(&self.knots_u, &self.knots_v, u, v).map_err(|source| {
+                    BSplineError::InvalidSampleParameter {
+                        index,
+                        source: Box::new(source),
+                    }
+                })?;
+                let (su, sv) = (self.knots_u.span_in_domain(u), self.knots_v.span_in_domain(v));
+                // Fits in u32: the band-size limit caps the grid far below 2³² cells.
+                Ok(((su - shape.p) * shape.cells_v + sv - shape.q) as u32)
             })
-            .collect();
-        let mut iter = partial.into_iter();
-        let mut total = iter.next().expect("at least one block");
-        for block in iter {
-            total.add(&block);
-        }
-        total
+            .collect()
     }
+
+    /// Per-cell sums of the normal-equation terms. The samples are counting-sorted by knot
+    /// cell (stably), so that each cell's sums stay in cache while its samples are added, and
+    /// the cells are summed in parallel into disjoint slots; each cell adds its samples in
+    /// input order, so the sums are the same bits on any number of threads.
+    fn accumulate(&self, params: &[[Real; 2]], points: &[Point3<Real>]) -> Result<CellSums, BSplineError> {
+        let shape = CellShape::new(&self.knots_u, &self.knots_v);
+        let cell_of = self.locate(params, &shape)?;
+        let cells = shape.cells_u * shape.cells_v;
+        let mut offsets = vec![0u32; cells + 1];
+        for &c in &cell_of {
+            offsets[c as usize + 1] += 1;
+        }
+        for c in 0..cells {
+            offsets[c + 1] += offsets[c];
+        }
+        let mut order = vec![0u32; params.len()];
+        let mut next = offsets.clone();
+        for (s, &c) in cell_of.iter().enumerate() {
+            order[next[c as usize] as usize] = s as u32;
+            next[c as usize] += 1;
+        }
+        // Gathered copies in cell order: the random reads happen here, in a loop simple enough
+        // for the processor to overlap them, instead of inside the arithmetic.
+        let params: Vec<[Real; 2]> = order.iter().map(|&s| params[s as usize]).collect();
+        let points: Vec<Point3<Real>> = order.iter().map(|&s| points[s as usize]).collect();
+        let weights: Option<Vec<Real>> = self
+            .weights
+            .map(|w| order.iter().map(|&s| w[s as usize]).collect());
+        let mut sums = CellSums::zeros(shape);
+        let samples = Samples {
+            params: &params,
+            points: &points,
+            weights: weights.as_deref(),
+            offsets: &offsets,
+        };
+        with_widths!(
+            shape.p,
+            shape.q,
+            sums.add_samples(&self.knots_u, &self.knots_v, &samples)
+        );
+        Ok(sums)
+    }
+}
+
+/// The samples of a fit sorted by knot cell: cell `c`'s samples are `offsets[c]..offsets[c + 1]`.
+struct Samples<'a> {
+    params: &'a [[Real; 2]],
+    points: &'a [Point3<Real>],
+    weights: Option<&'a [Real]>,
+    offsets: &'a [u32],
 }
 
 /// Sizes of the per-cell accumulators for degrees `(p, q)`.
@@ -329,75 +347,55 @@ impl CellSums {
         }
     }
 
-    fn add(&mut self, other: &CellSums) {
-        for (a, b) in self.data.iter_mut().zip(&other.data) {
-            *a += b;
-        }
-    }
-
-    fn add_samples(
+    fn add_samples<const NU: usize, const NV: usize>(
         &mut self,
         knots_u: &KnotVector,
         knots_v: &KnotVector,
-        params: &[[Real; 2]],
-        points: &[Point3<Real>],
-        weights: Option<&[Real]>,
+        samples: &Samples<'_>,
     ) {
-        let CellShape {
-            p,
-            q,
-            cells_v,
-            pairs_u,
-            pairs_v,
-            ..
-        } = self.shape;
-        let per_cell = self.shape.per_cell();
+        let shape = self.shape;
+        let (wu, wv) = (width::<NU>(shape.p), width::<NV>(shape.q));
+        let (pairs_u, pairs_v) = (wu * (wu + 1) / 2, wv * (wv + 1) / 2);
         let gram_len = pairs_u * pairs_v;
-        let mut nu = [0.0; MAX_DEGREE + 1];
-        let mut nv = [0.0; MAX_DEGREE + 1];
-        let mut pu = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 2) / 2];
-        let mut pv = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 2) / 2];
-        for (s, (&[u, v], f)) in params.iter().zip(points).enumerate() {
-            let w = weights.map_or(1.0, |w| w[s]);
-            let su = knots_u.span_in_domain(u);
-            let sv = knots_v.span_in_domain(v);
-            basis_functions(knots_u, su, u, &mut nu);
-            basis_functions(knots_v, sv, v, &mut nv);
-            symmetric_products(&nu[..=p], w, &mut pu[..pairs_u]);
-            symmetric_products(&nv[..=q], 1.0, &mut pv[..pairs_v]);
-            let cell = (su - p) * cells_v + (sv - q);
-            let acc = &mut self.data[cell * per_cell..(cell + 1) * per_cell];
-            let (gram, rhs) = acc.split_at_mut(gram_len);
-            for (row, &x) in gram.chunks_exact_mut(pairs_v).zip(&pu[..pairs_u]) {
-                for (g, &y) in row.iter_mut().zip(&pv[..pairs_v]) {
-                    *g += x * y;
+        self.data
+            .par_chunks_mut(shape.per_cell())
+            .enumerate()
+            .for_each(|(cell, acc)| {
+                let (gram, rhs) = acc.split_at_mut(gram_len);
+                let members = samples.offsets[cell] as usize..samples.offsets[cell + 1] as usize;
+                for s in members {
+                    let [u, v] = samples.params[s];
+                    let w = samples.weights.map_or(1.0, |w| w[s]);
+                    let nu = basis_fixed::<NU>(knots_u, knots_u.span_in_domain(u), u);
+                    let nv = basis_fixed::<NV>(knots_v, knots_v.span_in_domain(v), v);
+                    // gram[pair(a, c)·pairs_v + pair(b, d)] += w·Nₐ N_c·N_b N_d, pairs in
+                    // upper-triangle order, as `pair_index` numbers them.
+                    let mut k = 0;
+                    for a in 0..wu {
+                        for c in a..wu {
+                            let x = w * nu[a] * nu[c];
+                            for b in 0..wv {
+                                let xb = x * nv[b];
+                                for d in b..wv {
+                                    gram[k] += xb * nv[d];
+                                    k += 1;
+                                }
+                            }
+                        }
+                    }
+                    let wf = samples.points[s].coords * w;
+                    let mut r = 0;
+                    for &a in &nu[..wu] {
+                        for &b in &nv[..wv] {
+                            let ab = a * b;
+                            rhs[r] += ab * wf.x;
+                            rhs[r + 1] += ab * wf.y;
+                            rhs[r + 2] += ab * wf.z;
+                            r += 3;
+                        }
+                    }
                 }
-            }
-            let wf = f.coords * w;
-            let mut r = 0;
-            for &a in &nu[..=p] {
-                for &b in &nv[..=q] {
-                    let ab = a * b;
-                    rhs[r] += ab * wf.x;
-                    rhs[r + 1] += ab * wf.y;
-                    rhs[r + 2] += ab * wf.z;
-                    r += 3;
-                }
-            }
-        }
-    }
-}
-
-/// `out[pair(a, c)] = w·n[a]·n[c]` for `a ≤ c`, pairs numbered row by row of the upper triangle.
-#[inline(always)]
-fn symmetric_products(n: &[Real], w: Real, out: &mut [Real]) {
-    let mut k = 0;
-    for a in 0..n.len() {
-        let wa = w * n[a];
-        for &nc in &n[a..] {
-            out[k] = wa * nc;
-            k += 1;
-        }
+            });
     }
 }
 
@@ -602,7 +600,8 @@ fn residuals(
         .zip(points.par_chunks(CHUNK))
         .enumerate()
         .map(|(c, (par, pts))| {
-            let fitted = surface.eval_many_sequential(par)?;
+            let mut fitted = vec![Point3::origin(); par.len()];
+            surface.eval_many_into(par, &mut fitted)?;
             let mut sum = 0.0;
             let mut max = (0.0, 0);
             for (k, (a, b)) in fitted.iter().zip(pts).enumerate() {

@@ -49,8 +49,18 @@ pub const MAX_DEGREE: usize = 15;
 pub struct KnotVector {
     degree: usize,
     knots: Vec<Real>,
+    // Derived from the two fields above, cached for the hot paths.
     /// `1 / h` when every span of the domain has the same width `h` (enables O(1) lookup).
     inverse_uniform_width: Option<Real>,
+    /// The domain `[u_p, u_n]`.
+    start: Real,
+    end: Real,
+    /// The last non-empty span of the domain (where its right end belongs).
+    last_span: usize,
+    /// Per span `i`, the reciprocals `1 / (u_{i+r+1} − u_{i+r+1−j})` of the Cox–de Boor
+    /// denominators for `j = 1..=p`, `r = 0..j`: `p(p+1)/2` values, so that basis evaluation
+    /// needs no division. Zero for empty spans (never read).
+    inverse_denominators: Vec<Real>,
 }
 
 /// The serialised form: only what defines the vector; the lookup acceleration is rebuilt.
@@ -129,10 +139,33 @@ impl KnotVector {
             return Err(BSplineError::EmptyDomain { start, end });
         }
         let inverse_uniform_width = uniform_inverse_width(&knots[degree..=n]);
+        let last_span = (degree..n)
+            .rev()
+            .find(|&i| knots[i] < knots[i + 1])
+            .expect("non-empty domain");
+        let per_span = degree * (degree + 1) / 2;
+        let mut inverse_denominators = vec![0.0; knots.len() * per_span];
+        for span in degree..n {
+            if knots[span] == knots[span + 1] {
+                continue;
+            }
+            let mut at = span * per_span;
+            for j in 1..=degree {
+                for r in 0..j {
+                    // ≥ u_{span+1} − u_span > 0 on a non-empty span.
+                    inverse_denominators[at] = 1.0 / (knots[span + r + 1] - knots[span + r + 1 - j]);
+                    at += 1;
+                }
+            }
+        }
         Ok(KnotVector {
             degree,
             knots,
             inverse_uniform_width,
+            start,
+            end,
+            last_span,
+            inverse_denominators,
         })
     }
 
@@ -212,7 +245,7 @@ impl KnotVector {
     /// The parameter domain `[u_p, u_n]`.
     #[inline]
     pub fn domain(&self) -> (Real, Real) {
-        (self.knots[self.degree], self.knots[self.num_control_points()])
+        (self.start, self.end)
     }
 
     /// Whether every knot span of the domain has the same width (span lookup is then O(1)).
@@ -236,43 +269,44 @@ impl KnotVector {
     /// The basis functions that can be non-zero at `u` are `N_{i−p}, …, N_i`.
     #[inline]
     pub fn span(&self, u: Real) -> Option<usize> {
-        let (start, end) = self.domain();
         // Written so that NaN fails the test.
-        if !(u >= start && u <= end) {
+        if !(u >= self.start && u <= self.end) {
             return None;
         }
         Some(self.span_in_domain(u))
     }
 
     /// [`KnotVector::span`] for a `u` already known to lie in the domain.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn span_in_domain(&self, u: Real) -> usize {
-        let p = self.degree;
-        let n = self.num_control_points();
         let k = &self.knots;
-        if u >= k[n] {
-            // Right end: last span of non-zero width.
-            let mut i = n - 1;
-            while k[i] == k[i + 1] {
-                i -= 1;
-            }
-            return i;
+        if u >= self.end {
+            return self.last_span;
         }
         if let Some(inv_h) = self.inverse_uniform_width {
-            // Guess by arithmetic, then correct against the stored knots so the answer is
-            // exactly the binary search's whatever the rounding.
-            let guess = p + ((u - k[p]) * inv_h) as usize;
-            let mut i = guess.clamp(p, n - 1);
+            // Guess by arithmetic (u − start ≥ 0, so the cast is a floor), then correct against
+            // the stored knots so the answer is exactly the binary search's whatever the
+            // rounding: uniform spans are equal to 10⁻⁹ of their width, so one step at most.
+            let p = self.degree;
+            let mut i = (p + ((u - self.start) * inv_h) as usize).min(self.last_span);
             while i > p && u < k[i] {
                 i -= 1;
             }
-            while i < n - 1 && u >= k[i + 1] {
+            while i < self.last_span && u >= k[i + 1] {
                 i += 1;
             }
             return i;
         }
         // First knot strictly greater than u, within [p + 1, n]; the span is the one before it.
+        let (p, n) = (self.degree, self.num_control_points());
         p + k[p + 1..=n].partition_point(|&x| x <= u)
+    }
+
+    /// The reciprocal Cox–de Boor denominators of span `span` (see the field's comment).
+    #[inline(always)]
+    pub(crate) fn inverse_denominators(&self, span: usize) -> &[Real] {
+        let per_span = self.degree * (self.degree + 1) / 2;
+        &self.inverse_denominators[span * per_span..(span + 1) * per_span]
     }
 
     /// The Greville abscissae `ξᵢ = (u_{i+1} + … + u_{i+p}) / p`, one per control point (for

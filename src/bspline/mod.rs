@@ -20,6 +20,20 @@
 //! Conventions: control grids are flat and row-major, `rows × cols`, row `i` along `u` and
 //! column `j` along `v`, so `bᵢⱼ` is `control_points()[i·cols + j]`. Degrees, never orders.
 
+/// Calls `$receiver.$method::<NU, NV>(args)` with the basis widths `NU = p + 1`, `NV = q + 1`
+/// as compile-time constants for the common equal degrees 1–3, so that the hot loops unroll,
+/// and with `RUNTIME` (degrees read at run time, see `basis::width`) for any other degrees.
+macro_rules! with_widths {
+    ($p:expr, $q:expr, $receiver:ident . $method:ident ( $($arg:expr),* )) => {
+        match ($p, $q) {
+            (3, 3) => $receiver.$method::<4, 4>($($arg),*),
+            (2, 2) => $receiver.$method::<3, 3>($($arg),*),
+            (1, 1) => $receiver.$method::<2, 2>($($arg),*),
+            _ => $receiver.$method::<{ $crate::bspline::basis::RUNTIME }, { $crate::bspline::basis::RUNTIME }>($($arg),*),
+        }
+    };
+}
+
 mod band;
 mod basis;
 mod fit;

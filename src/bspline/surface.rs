@@ -4,7 +4,7 @@ use nalgebra::{Affine3, DMatrix, Point3, Unit, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::basis::{basis_derivatives, basis_functions};
+use super::basis::{RUNTIME, basis_derivatives, basis_fixed, width};
 use super::knots::{KnotVector, MAX_DEGREE};
 use super::{BSplineError, Direction};
 use crate::Real;
@@ -40,6 +40,9 @@ pub struct BSplineSurface {
     cols: usize,
     control_points: Vec<Point3<Real>>,
 }
+
+/// Parameters per parallel task in batch evaluation.
+const BATCH: usize = 2048;
 
 /// The JSON tag of a serialised surface.
 const FORMAT: &str = "splineface/bspline-surface";
@@ -220,30 +223,40 @@ impl BSplineSurface {
         self.knots_v.domain()
     }
 
+    /// Whether `(u, v)` lies in the domain, or the error that says why not.
+    #[inline]
+    fn check(&self, u: Real, v: Real) -> Result<(), BSplineError> {
+        check_parameter(&self.knots_u, &self.knots_v, u, v)
+    }
+
     /// The spans of `(u, v)`, or the error that says why there are none.
     #[inline]
     fn locate(&self, u: Real, v: Real) -> Result<(usize, usize), BSplineError> {
-        if !(u.is_finite() && v.is_finite()) {
-            return Err(BSplineError::NonFiniteParameter { u, v });
-        }
-        let su = span_or_error(&self.knots_u, Direction::U, u)?;
-        let sv = span_or_error(&self.knots_v, Direction::V, v)?;
-        Ok((su, sv))
+        self.check(u, v)?;
+        Ok((self.knots_u.span_in_domain(u), self.knots_v.span_in_domain(v)))
     }
 
-    /// `Σₐ Σ_b nu[a]·nv[b]·b_{su−p+a, sv−q+b}`: the point, given both directions' basis values.
+    /// `F(u, v)` on the spans `(su, sv)`: `Σₐ Σ_b Nₐ(u)·N_b(v)·b_{su−p+a, sv−q+b}`.
     #[inline(always)]
-    fn combine(&self, su: usize, sv: usize, nu: &[Real], nv: &[Real]) -> Vector3<Real> {
-        let (p, q) = (self.degree_u(), self.degree_v());
+    pub(crate) fn point_in_span<const NU: usize, const NV: usize>(
+        &self,
+        su: usize,
+        sv: usize,
+        u: Real,
+        v: Real,
+    ) -> Vector3<Real> {
+        let (wu, wv) = (width::<NU>(self.degree_u()), width::<NV>(self.degree_v()));
+        let nu = basis_fixed::<NU>(&self.knots_u, su, u);
+        let nv = basis_fixed::<NV>(&self.knots_v, sv, v);
         let mut acc = Vector3::zeros();
-        for (a, &wu) in nu[..=p].iter().enumerate() {
-            let start = (su - p + a) * self.cols + sv - q;
-            let row = &self.control_points[start..=start + q];
+        for (a, &weight_u) in nu[..wu].iter().enumerate() {
+            let start = (su + 1 + a - wu) * self.cols + sv + 1 - wv;
+            let row = &self.control_points[start..start + wv];
             let mut t = Vector3::zeros();
-            for (pt, &wv) in row.iter().zip(&nv[..=q]) {
-                t += pt.coords * wv;
+            for (pt, &weight_v) in row.iter().zip(&nv[..wv]) {
+                t += pt.coords * weight_v;
             }
-            acc += t * wu;
+            acc += t * weight_u;
         }
         acc
     }
@@ -255,11 +268,11 @@ impl BSplineSurface {
     #[inline]
     pub fn eval(&self, u: Real, v: Real) -> Result<Point3<Real>, BSplineError> {
         let (su, sv) = self.locate(u, v)?;
-        let mut nu = [0.0; MAX_DEGREE + 1];
-        let mut nv = [0.0; MAX_DEGREE + 1];
-        basis_functions(&self.knots_u, su, u, &mut nu);
-        basis_functions(&self.knots_v, sv, v, &mut nv);
-        Ok(Point3::from(self.combine(su, sv, &nu, &nv)))
+        Ok(Point3::from(with_widths!(
+            self.degree_u(),
+            self.degree_v(),
+            self.point_in_span(su, sv, u, v)
+        )))
     }
 
     /// The partial derivatives `∂ᵏ⁺ˡF / ∂uᵏ ∂vˡ` for all `k + l ≤ order` (The NURBS Book A3.6).
@@ -366,81 +379,129 @@ impl BSplineSurface {
         if us.is_empty() || vs.is_empty() {
             return Ok(());
         }
-        let (p, q) = (self.degree_u(), self.degree_v());
         let u_spans = us
             .iter()
-            .map(|&u| self.locate(u, self.domain_v().0).map(|s| s.0))
+            .map(|&u| self.locate(u, self.domain_v().0).map(|(su, _)| su))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut v_spans = Vec::with_capacity(vs.len());
-        let mut v_basis = vec![0.0; vs.len() * (q + 1)];
-        for (&v, nv) in vs.iter().zip(v_basis.chunks_exact_mut(q + 1)) {
-            let sv = self.locate(self.domain_u().0, v)?.1;
-            basis_functions(&self.knots_v, sv, v, nv);
-            v_spans.push(sv - q);
-        }
+        let v_spans = vs
+            .iter()
+            .map(|&v| self.locate(self.domain_u().0, v).map(|(_, sv)| sv))
+            .collect::<Result<Vec<_>, _>>()?;
+        with_widths!(
+            self.degree_u(),
+            self.degree_v(),
+            self.eval_grid_checked(us, vs, &u_spans, &v_spans, out)
+        );
+        Ok(())
+    }
+
+    /// [`BSplineSurface::eval_grid_into`] once every parameter's span is known.
+    fn eval_grid_checked<const NU: usize, const NV: usize>(
+        &self,
+        us: &[Real],
+        vs: &[Real],
+        u_spans: &[usize],
+        v_spans: &[usize],
+        out: &mut [Point3<Real>],
+    ) {
+        let (wu, wv) = (width::<NU>(self.degree_u()), width::<NV>(self.degree_v()));
+        // The v basis functions, once for the whole grid, and each one's first control column.
+        let v_basis: Vec<[Real; NV]> = vs
+            .iter()
+            .zip(v_spans)
+            .map(|(&v, &sv)| basis_fixed::<NV>(&self.knots_v, sv, v))
+            .collect();
+        let v_first: Vec<usize> = v_spans.iter().map(|&sv| sv + 1 - wv).collect();
         let cols = self.cols;
         out.par_chunks_mut(vs.len())
-            .zip(us.par_iter().zip(&u_spans))
+            .zip(us.par_iter().zip(u_spans))
             .for_each_init(
                 || vec![Vector3::<Real>::zeros(); cols],
                 |curve, (row_out, (&u, &su))| {
-                    let mut nu = [0.0; MAX_DEGREE + 1];
-                    basis_functions(&self.knots_u, su, u, &mut nu);
+                    // The control points of the intermediate curve C(v) = F(u, v).
+                    let nu = basis_fixed::<NU>(&self.knots_u, su, u);
                     curve.fill(Vector3::zeros());
-                    for (a, &w) in nu[..=p].iter().enumerate() {
-                        let row = &self.control_points[(su - p + a) * cols..(su - p + a + 1) * cols];
-                        for (c, pt) in curve.iter_mut().zip(row) {
+                    for (a, &w) in nu[..wu].iter().enumerate() {
+                        let first = (su + 1 + a - wu) * cols;
+                        for (c, pt) in curve.iter_mut().zip(&self.control_points[first..first + cols]) {
                             *c += pt.coords * w;
                         }
                     }
-                    for ((o, &first), nv) in row_out.iter_mut().zip(&v_spans).zip(v_basis.chunks_exact(q + 1))
-                    {
+                    for ((o, &first), nv) in row_out.iter_mut().zip(&v_first).zip(&v_basis) {
                         let mut acc = Vector3::zeros();
-                        for (c, &w) in curve[first..=first + q].iter().zip(nv) {
+                        for (c, &w) in curve[first..first + wv].iter().zip(&nv[..wv]) {
                             acc += c * w;
                         }
                         *o = Point3::from(acc);
                     }
                 },
             );
-        Ok(())
     }
 
     /// Evaluates the surface at every `[u, v]` of `params`, in parallel (rayon).
     ///
     /// # Errors
-    /// As [`BSplineSurface::eval`], for a bad parameter (which one is reported when several
-    /// are bad is unspecified).
+    /// As [`BSplineSurface::eval`], for the first bad parameter in the list; then nothing is
+    /// evaluated.
     pub fn eval_many(&self, params: &[[Real; 2]]) -> Result<Vec<Point3<Real>>, BSplineError> {
-        const CHUNK: usize = 4096;
         let mut out = vec![Point3::origin(); params.len()];
-        out.par_chunks_mut(CHUNK)
-            .zip(params.par_chunks(CHUNK))
-            .try_for_each(|(o, p)| self.eval_slice_into(p, o))?;
+        self.eval_many_into(params, &mut out)?;
         Ok(out)
     }
 
-    /// [`BSplineSurface::eval_many`] on the calling thread only.
-    pub(crate) fn eval_many_sequential(
+    /// [`BSplineSurface::eval_many`] into a caller's buffer of `params.len()` points (which
+    /// spares a large allocation when it is reused).
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::eval_many`]; `out` is untouched after an error.
+    ///
+    /// # Panics
+    /// If `out.len() ≠ params.len()`.
+    pub fn eval_many_into(&self, params: &[[Real; 2]], out: &mut [Point3<Real>]) -> Result<(), BSplineError> {
+        assert_eq!(out.len(), params.len(), "output buffer has the wrong size");
+        self.check_all(params)?;
+        with_widths!(
+            self.degree_u(),
+            self.degree_v(),
+            self.eval_in_domain_into(params, out)
+        );
+        Ok(())
+    }
+
+    /// The error for the first parameter outside the domain, if any.
+    fn check_all(&self, params: &[[Real; 2]]) -> Result<(), BSplineError> {
+        let first_bad_chunk = params
+            .par_chunks(BATCH)
+            .position_first(|chunk| chunk.iter().any(|&[u, v]| self.check(u, v).is_err()));
+        match first_bad_chunk {
+            Some(c) => params[c * BATCH..]
+                .iter()
+                .try_for_each(|&[u, v]| self.check(u, v)),
+            None => Ok(()),
+        }
+    }
+
+    /// `F(u, v)` for parameters already checked to lie in the domain.
+    #[inline(always)]
+    fn point_in_domain<const NU: usize, const NV: usize>(&self, u: Real, v: Real) -> Point3<Real> {
+        let (su, sv) = (self.knots_u.span_in_domain(u), self.knots_v.span_in_domain(v));
+        Point3::from(self.point_in_span::<NU, NV>(su, sv, u, v))
+    }
+
+    fn eval_in_domain_into<const NU: usize, const NV: usize>(
         &self,
         params: &[[Real; 2]],
-    ) -> Result<Vec<Point3<Real>>, BSplineError> {
-        let mut out = vec![Point3::origin(); params.len()];
-        self.eval_slice_into(params, &mut out)?;
-        Ok(out)
-    }
-
-    /// Sequential evaluation of `params` into `out` (same length).
-    fn eval_slice_into(&self, params: &[[Real; 2]], out: &mut [Point3<Real>]) -> Result<(), BSplineError> {
-        let mut nu = [0.0; MAX_DEGREE + 1];
-        let mut nv = [0.0; MAX_DEGREE + 1];
-        for (o, &[u, v]) in out.iter_mut().zip(params) {
-            let (su, sv) = self.locate(u, v)?;
-            basis_functions(&self.knots_u, su, u, &mut nu);
-            basis_functions(&self.knots_v, sv, v, &mut nv);
-            *o = Point3::from(self.combine(su, sv, &nu, &nv));
-        }
-        Ok(())
+        out: &mut [Point3<Real>],
+    ) {
+        // Chunks with a plain loop inside, so that the evaluation inlines into the loop (a
+        // per-point closure handed to rayon costs half as much again).
+        out.par_chunks_mut(BATCH)
+            .zip(params.par_chunks(BATCH))
+            .for_each(|(out, params)| {
+                for (o, &[u, v]) in out.iter_mut().zip(params) {
+                    *o = self.point_in_domain::<NU, NV>(u, v);
+                }
+            });
     }
 
     /// The sparse basis matrix `R`: one row per `[u, v]` of `params`, one column per control
@@ -454,12 +515,10 @@ impl BSplineSurface {
         let nnz = (p + 1) * (q + 1);
         let mut columns = Vec::with_capacity(params.len() * nnz);
         let mut values = Vec::with_capacity(params.len() * nnz);
-        let mut nu = [0.0; MAX_DEGREE + 1];
-        let mut nv = [0.0; MAX_DEGREE + 1];
         for &[u, v] in params {
             let (su, sv) = self.locate(u, v)?;
-            basis_functions(&self.knots_u, su, u, &mut nu);
-            basis_functions(&self.knots_v, sv, v, &mut nv);
+            let nu = basis_fixed::<RUNTIME>(&self.knots_u, su, u);
+            let nv = basis_fixed::<RUNTIME>(&self.knots_v, sv, v);
             for (a, &wu) in nu[..=p].iter().enumerate() {
                 for (b, &wv) in nv[..=q].iter().enumerate() {
                     columns.push((su - p + a) * self.cols + sv - q + b);
@@ -536,16 +595,29 @@ impl BSplineSurface {
     }
 }
 
-fn span_or_error(knots: &KnotVector, direction: Direction, value: Real) -> Result<usize, BSplineError> {
-    knots.span(value).ok_or_else(|| {
+/// Whether `(u, v)` lies in the domain of the knot vectors, or the error that says why not.
+#[inline]
+pub(crate) fn check_parameter(
+    knots_u: &KnotVector,
+    knots_v: &KnotVector,
+    u: Real,
+    v: Real,
+) -> Result<(), BSplineError> {
+    if !(u.is_finite() && v.is_finite()) {
+        return Err(BSplineError::NonFiniteParameter { u, v });
+    }
+    for (knots, direction, value) in [(knots_u, Direction::U, u), (knots_v, Direction::V, v)] {
         let (start, end) = knots.domain();
-        BSplineError::ParameterOutOfDomain {
-            direction,
-            value,
-            start,
-            end,
+        if !(value >= start && value <= end) {
+            return Err(BSplineError::ParameterOutOfDomain {
+                direction,
+                value,
+                start,
+                end,
+            });
         }
-    })
+    }
+    Ok(())
 }
 
 /// The partial derivatives of a surface at one parameter, from

@@ -1,0 +1,126 @@
+//! Speed of the B-spline kernel on one core (a one-thread rayon pool), cubic surfaces.
+//!
+//! Targets (issue 2): scattered evaluation ≥ 20 M points/s and a dense 1000 × 1000 grid
+//! ≥ 150 M points/s on a 32 × 32 grid; fitting 10⁵ samples to 32 × 32 in ≤ 30 ms and 10⁶
+//! samples to 64 × 64 in ≤ 300 ms. `dense grid/pointwise` is the baseline the separable grid
+//! evaluation is measured against in the same run.
+//!
+//! Run: `cargo bench --bench bspline`.
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use nalgebra::Point3;
+use splineface::bspline::{BSplineSurface, KnotVector, SurfaceFit};
+use std::hint::black_box;
+use std::time::Duration;
+
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+fn cubic_surface(n: usize) -> BSplineSurface {
+    let k = KnotVector::clamped_uniform(3, n, 0.0, 1.0).unwrap();
+    let mut rng = Lcg(1);
+    let grid = (0..n * n)
+        .map(|i| Point3::new((i / n) as f64, (i % n) as f64, rng.next()))
+        .collect();
+    BSplineSurface::new(k.clone(), k, n, n, grid).unwrap()
+}
+
+fn one_thread() -> rayon::ThreadPool {
+    rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap()
+}
+
+fn evaluation(c: &mut Criterion) {
+    let pool = one_thread();
+    let s = cubic_surface(32);
+    let mut rng = Lcg(2);
+    let params: Vec<[f64; 2]> = (0..1_000_000).map(|_| [rng.next(), rng.next()]).collect();
+
+    let mut g = c.benchmark_group("scattered");
+    g.throughput(Throughput::Elements(params.len() as u64));
+    g.sample_size(20);
+    g.bench_function("eval_many 32x32 1M", |b| {
+        b.iter(|| pool.install(|| black_box(s.eval_many(black_box(&params)).unwrap())))
+    });
+    g.finish();
+
+    let grid: Vec<f64> = (0..1000).map(|i| i as f64 / 999.0).collect();
+    let mut g = c.benchmark_group("dense grid");
+    g.throughput(Throughput::Elements(1_000_000));
+    g.sample_size(20);
+    g.bench_function("eval_grid 32x32 1000x1000", |b| {
+        let mut out = vec![Point3::origin(); 1_000_000];
+        b.iter(|| {
+            pool.install(|| {
+                s.eval_grid_into(black_box(&grid), black_box(&grid), &mut out)
+                    .unwrap()
+            })
+        })
+    });
+    g.bench_function("pointwise 32x32 1000x1000", |b| {
+        let mut out = vec![Point3::origin(); 1_000_000];
+        b.iter(|| {
+            for (i, &u) in grid.iter().enumerate() {
+                for (j, &v) in grid.iter().enumerate() {
+                    out[i * 1000 + j] = s.eval(u, v).unwrap();
+                }
+            }
+            black_box(&out);
+        })
+    });
+    g.finish();
+}
+
+fn fitting(c: &mut Criterion) {
+    let pool = one_thread();
+    let mut g = c.benchmark_group("fit");
+    g.sample_size(10);
+    g.measurement_time(Duration::from_secs(10));
+    for (samples, n) in [(100_000usize, 32usize), (1_000_000, 64)] {
+        let truth = cubic_surface(n);
+        let mut rng = Lcg(3);
+        let params: Vec<[f64; 2]> = (0..samples).map(|_| [rng.next(), rng.next()]).collect();
+        let points = truth.eval_many(&params).unwrap();
+        let k = KnotVector::clamped_uniform(3, n, 0.0, 1.0).unwrap();
+        g.throughput(Throughput::Elements(samples as u64));
+        g.bench_with_input(BenchmarkId::new(format!("{n}x{n}"), samples), &samples, |b, _| {
+            b.iter(|| {
+                pool.install(|| {
+                    black_box(
+                        SurfaceFit::new(k.clone(), k.clone())
+                            .fit(&params, &points)
+                            .unwrap(),
+                    )
+                })
+            })
+        });
+        g.bench_with_input(
+            BenchmarkId::new(format!("{n}x{n} smoothed"), samples),
+            &samples,
+            |b, _| {
+                b.iter(|| {
+                    pool.install(|| {
+                        black_box(
+                            SurfaceFit::new(k.clone(), k.clone())
+                                .smoothness(1e-8)
+                                .fit(&params, &points)
+                                .unwrap(),
+                        )
+                    })
+                })
+            },
+        );
+    }
+    g.finish();
+}
+
+criterion_group!(benches, evaluation, fitting);
+criterion_main!(benches);
