@@ -376,8 +376,8 @@ impl CellSums {
                             let x = w * nu[a] * nu[c];
                             for b in 0..wv {
                                 let xb = x * nv[b];
-                                for d in b..wv {
-                                    gram[k] += xb * nv[d];
+                                for &nd in &nv[b..wv] {
+                                    gram[k] += xb * nd;
                                     k += 1;
                                 }
                             }
