@@ -50,6 +50,19 @@ fn evaluation(c: &mut Criterion) {
     g.bench_function("eval_many 32x32 1M", |b| {
         b.iter(|| pool.install(|| black_box(s.eval_many(black_box(&params)).unwrap())))
     });
+    g.bench_function("eval_many_into 32x32 1M", |b| {
+        let mut out = vec![Point3::origin(); params.len()];
+        b.iter(|| pool.install(|| s.eval_many_into(black_box(&params), &mut out).unwrap()))
+    });
+    g.bench_function("eval loop 32x32 1M", |b| {
+        b.iter(|| {
+            let mut acc = 0.0;
+            for &[u, v] in &params {
+                acc += s.eval(u, v).unwrap().z;
+            }
+            black_box(acc)
+        })
+    });
     g.finish();
 
     let grid: Vec<f64> = (0..1000).map(|i| i as f64 / 999.0).collect();
