@@ -5,8 +5,8 @@ use rayon::prelude::*;
 
 use super::BSplineError;
 use super::band::SymmetricBand;
-use super::basis::{basis_fixed, width};
-use super::knots::KnotVector;
+use super::basis::{basis_derivatives, width};
+use super::knots::{KnotVector, MAX_DEGREE};
 use super::surface::{BSplineSurface, check_parameter};
 use crate::Real;
 
@@ -40,11 +40,14 @@ const MAX_BAND_ENTRIES: usize = 1 << 28;
 ///   plane is reproduced to `10⁻¹²` for `λ ≤ 10⁻³`, `10⁻⁹` at `λ = 1`, `3·10⁻⁷` at `λ = 10³`
 ///   (relative to the geometry). Values above 1 are rarely useful anyway.
 ///
-/// The normal equations are accumulated per knot cell through the tensor-product structure
-/// (`(p+1)(p+2)/2 · (q+1)(q+2)/2` products per sample instead of `((p+1)(q+1))²`), numbered
-/// along the shorter grid dimension so they are banded, and solved by a banded Cholesky
-/// factorisation. The result is deterministic: the same input gives the same bits on any
-/// number of threads.
+/// How it is computed: the samples are sorted by knot cell; inside a cell every basis function
+/// is a polynomial in the cell's local parameters `(t, s)`, written in the scaled Bernstein
+/// basis where B-splines have non-negative coefficients, so each cell only accumulates the
+/// moments `Σ w·tᵐ(1−t)²ᵖ⁻ᵐ·sⁿ(1−s)²q⁻ⁿ` (`(2p+1)(2q+1)` multiply-adds per sample, no basis
+/// evaluation, no cancellation) and converts them to its block of the normal equations once.
+/// The unknowns are numbered along the shorter grid dimension so the normal matrix is banded,
+/// and a banded Cholesky factorisation solves it. The result is deterministic: the same input
+/// gives the same bits on any number of threads.
 ///
 /// # Examples
 ///
@@ -279,11 +282,11 @@ impl<'a> SurfaceFit<'a> {
             weights: weights.as_deref(),
             offsets: &offsets,
         };
-        with_widths!(
-            shape.p,
-            shape.q,
-            sums.add_samples(&self.knots_u, &self.knots_v, &samples)
+        let polynomials = (
+            &SpanPolynomials::new(&self.knots_u),
+            &SpanPolynomials::new(&self.knots_v),
         );
+        with_widths!(shape.p, shape.q, sums.add_samples(polynomials, &samples));
         Ok(sums)
     }
 }
@@ -349,67 +352,212 @@ impl CellSums {
 
     fn add_samples<const NU: usize, const NV: usize>(
         &mut self,
-        knots_u: &KnotVector,
-        knots_v: &KnotVector,
+        polynomials: (&SpanPolynomials, &SpanPolynomials),
         samples: &Samples<'_>,
     ) {
         let shape = self.shape;
         let (wu, wv) = (width::<NU>(shape.p), width::<NV>(shape.q));
+        // Moments of degree 2p × 2q for the Gram entries, p × q for the right-hand sides.
+        let (mu, mv) = (2 * wu - 1, 2 * wv - 1);
         let (pairs_u, pairs_v) = (wu * (wu + 1) / 2, wv * (wv + 1) / 2);
         let gram_len = pairs_u * pairs_v;
+        let (poly_u, poly_v) = polynomials;
         self.data
             .par_chunks_mut(shape.per_cell())
             .enumerate()
-            .for_each(|(cell, acc)| {
-                let (gram, rhs) = acc.split_at_mut(gram_len);
-                let members = samples.offsets[cell] as usize..samples.offsets[cell + 1] as usize;
-                for s in members {
-                    let [u, v] = samples.params[s];
-                    let w = samples.weights.map_or(1.0, |w| w[s]);
-                    let nu = basis_fixed::<NU>(knots_u, knots_u.span_in_domain(u), u);
-                    let nv = basis_fixed::<NV>(knots_v, knots_v.span_in_domain(v), v);
-                    // gram[pair(a, c)·pairs_v + pair(b, d)] += w·Nₐ N_c·N_b N_d: the pair
-                    // products first (upper-triangle order, as `pair_index` numbers them), then
-                    // one rectangular update, which unrolls and vectorises where nested
-                    // triangular loops did not (4× fewer instructions, measured).
-                    let mut pu = [[0.0; NU]; NU];
-                    let mut pv = [[0.0; NV]; NV];
-                    let pu = &mut pu.as_flattened_mut()[..pairs_u];
-                    let pv = &mut pv.as_flattened_mut()[..pairs_v];
-                    symmetric_products(&nu[..wu], w, pu);
-                    symmetric_products(&nv[..wv], 1.0, pv);
-                    for (row, &x) in gram.chunks_exact_mut(pairs_v).zip(pu.iter()) {
-                        for (g, &y) in row.iter_mut().zip(pv.iter()) {
-                            *g += x * y;
+            .for_each_init(
+                || vec![0.0; pairs_u * mv],
+                |half, (cell, acc)| {
+                    let members = samples.offsets[cell] as usize..samples.offsets[cell + 1] as usize;
+                    if members.is_empty() {
+                        return;
+                    }
+                    let (cu, cv) = (cell / shape.cells_v, cell % shape.cells_v);
+                    let (u0, iu) = (poly_u.starts[cu], poly_u.inverse_widths[cu]);
+                    let (v0, iv) = (poly_v.starts[cv], poly_v.inverse_widths[cv]);
+                    // Σ w·tᵐ(1−t)^(2p−m)·sⁿ(1−s)^(2q−n) and Σ w·f·tⁱ(1−t)^(p−i)·sʲ(1−s)^(q−j): all
+                    // terms non-negative. Arrays sized from the const widths (4·NU·NV ≥ mu·mv).
+                    let mut moments = [[[0.0; NV]; NU]; 4];
+                    let moments = &mut moments.as_flattened_mut().as_flattened_mut()[..mu * mv];
+                    let mut first = [[[0.0; NV]; NU]; 3];
+                    let first = &mut first.as_flattened_mut().as_flattened_mut()[..3 * wu * wv];
+                    for s in members {
+                        let [u, v] = samples.params[s];
+                        let w = samples.weights.map_or(1.0, |w| w[s]);
+                        let t = ((u - u0) * iu).clamp(0.0, 1.0);
+                        let r = ((v - v0) * iv).clamp(0.0, 1.0);
+                        let bu = scaled_bernstein::<NU>(t, w, wu);
+                        let bv = scaled_bernstein::<NV>(r, 1.0, wv);
+                        for (row, &x) in moments.chunks_exact_mut(mv).zip(&bu.0.as_flattened()[..mu]) {
+                            for (m, &y) in row.iter_mut().zip(&bv.0.as_flattened()[..mv]) {
+                                *m += x * y;
+                            }
+                        }
+                        let f = samples.points[s].coords;
+                        for (row, &x) in first.chunks_exact_mut(3 * wv).zip(&bu.1[..wu]) {
+                            for (m, &y) in row.chunks_exact_mut(3).zip(&bv.1[..wv]) {
+                                let c = x * y;
+                                m[0] += c * f.x;
+                                m[1] += c * f.y;
+                                m[2] += c * f.z;
+                            }
                         }
                     }
-                    let wf = samples.points[s].coords * w;
-                    let mut r = 0;
-                    for &a in &nu[..wu] {
-                        for &b in &nv[..wv] {
-                            let ab = a * b;
-                            rhs[r] += ab * wf.x;
-                            rhs[r + 1] += ab * wf.y;
-                            rhs[r + 2] += ab * wf.z;
-                            r += 3;
+                    // Gram: Σₘ Σₙ A[ac][m]·M[m][n]·B[bd][n], in two products.
+                    let (gram, rhs) = acc.split_at_mut(gram_len);
+                    let (pa, pb) = (poly_u.pair_coefficients(cu), poly_v.pair_coefficients(cv));
+                    for (h, a) in half.chunks_exact_mut(mv).zip(pa.chunks_exact(mu)) {
+                        for (n, hn) in h.iter_mut().enumerate() {
+                            *hn = a
+                                .iter()
+                                .enumerate()
+                                .map(|(m, &am)| am * moments[m * mv + n])
+                                .sum();
                         }
                     }
-                }
-            });
+                    for (g, h) in gram.chunks_exact_mut(pairs_v).zip(half.chunks_exact(mv)) {
+                        for (gv, b) in g.iter_mut().zip(pb.chunks_exact(mv)) {
+                            *gv = h.iter().zip(b).map(|(x, y)| x * y).sum();
+                        }
+                    }
+                    // Right-hand sides: Σᵢ Σⱼ Du[a][i]·F[i][j]·Dv[b][j].
+                    let (du, dv) = (poly_u.coefficients(cu), poly_v.coefficients(cv));
+                    for a in 0..wu {
+                        for b in 0..wv {
+                            let mut sum = [0.0; 3];
+                            for i in 0..wu {
+                                for j in 0..wv {
+                                    let c = du[a * wu + i] * dv[b * wv + j];
+                                    let fij = &first[(i * wv + j) * 3..][..3];
+                                    for k in 0..3 {
+                                        sum[k] += c * fij[k];
+                                    }
+                                }
+                            }
+                            rhs[(a * wv + b) * 3..][..3].copy_from_slice(&sum);
+                        }
+                    }
+                },
+            );
     }
 }
 
-/// `out[pair(a, c)] = w·n[a]·n[c]` for `a ≤ c`, pairs numbered row by row of the upper triangle.
+/// `(w·tᵐ(1−t)^(2p−m) for m ≤ 2p, w·tⁱ(1−t)^(p−i) for i ≤ p)` with `p = width − 1`, in arrays
+/// sized from the const width `N` (`2N ≥ 2p + 1`).
 #[inline(always)]
-fn symmetric_products(n: &[Real], w: Real, out: &mut [Real]) {
-    let mut k = 0;
-    for (a, &na) in n.iter().enumerate() {
-        let wa = w * na;
-        for &nc in &n[a..] {
-            out[k] = wa * nc;
-            k += 1;
+fn scaled_bernstein<const N: usize>(t: Real, w: Real, width: usize) -> ([[Real; N]; 2], [Real; N]) {
+    let p = width - 1;
+    let mut up = [[0.0; N]; 2];
+    let mut down = [[0.0; N]; 2];
+    let (up, down) = (up.as_flattened_mut(), down.as_flattened_mut());
+    up[0] = 1.0;
+    down[0] = 1.0;
+    for k in 1..2 * p + 1 {
+        up[k] = up[k - 1] * t;
+        down[k] = down[k - 1] * (1.0 - t);
+    }
+    let mut twice = [[0.0; N]; 2];
+    for (m, b) in twice.as_flattened_mut()[..2 * p + 1].iter_mut().enumerate() {
+        *b = w * up[m] * down[2 * p - m];
+    }
+    let mut once = [0.0; N];
+    for (i, b) in once[..p + 1].iter_mut().enumerate() {
+        *b = w * up[i] * down[p - i];
+    }
+    (twice, once)
+}
+
+/// The basis functions of one direction on each knot span, as polynomials in the span's local
+/// parameter `t = (u − u_i)/(u_{i+1} − u_i) ∈ [0, 1]`, in the scaled Bernstein basis
+/// `tⁱ(1 − t)ᵖ⁻ⁱ`: `N_{span−p+a}(u) = Σᵢ D[a][i]·tⁱ(1 − t)ᵖ⁻ⁱ`. B-splines have non-negative
+/// Bernstein coefficients on every span (Bézier extraction), so sums built from them do not
+/// cancel.
+struct SpanPolynomials {
+    degree: usize,
+    /// Per cell (span − p): `u_i` and `1/(u_{i+1} − u_i)` (zero for an empty span).
+    starts: Vec<Real>,
+    inverse_widths: Vec<Real>,
+    /// Per cell, `(p + 1) × (p + 1)`: `D[a][i]`.
+    coefficients: Vec<Real>,
+    /// Per cell, `pairs × (2p + 1)`: the coefficients of `N_a·N_c` (`a ≤ c`, `pair_index`
+    /// order) in the basis `tᵐ(1 − t)²ᵖ⁻ᵐ`, `Σ_{i+j=m} D[a][i]·D[c][j]`.
+    pair_coefficients: Vec<Real>,
+}
+
+impl SpanPolynomials {
+    fn new(knots: &KnotVector) -> Self {
+        let p = knots.degree();
+        let w = p + 1;
+        let pairs = w * (w + 1) / 2;
+        let k = knots.knots();
+        let cells = knots.num_control_points() - p;
+        let mut starts = vec![0.0; cells];
+        let mut inverse_widths = vec![0.0; cells];
+        let mut coefficients = vec![0.0; cells * w * w];
+        let mut pair_coefficients = vec![0.0; cells * pairs * (2 * p + 1)];
+        let mut derivatives = vec![0.0; w * w];
+        for cell in 0..cells {
+            let span = cell + p;
+            let h = k[span + 1] - k[span];
+            starts[cell] = k[span];
+            if h == 0.0 {
+                continue;
+            }
+            inverse_widths[cell] = 1.0 / h;
+            // Power coefficients in t from the derivatives at the span's start, then the
+            // power-to-Bernstein conversion cᵢ = Σ_{k≤i} C(i,k)/C(p,k)·aₖ, scaled by C(p,i).
+            basis_derivatives(knots, span, k[span], p, &mut derivatives);
+            let d = &mut coefficients[cell * w * w..(cell + 1) * w * w];
+            for a in 0..w {
+                let mut power = [0.0; MAX_DEGREE + 1];
+                let mut scale = 1.0; // h^k / k!
+                for (kk, c) in power[..w].iter_mut().enumerate() {
+                    *c = derivatives[kk * w + a] * scale;
+                    scale *= h / (kk + 1) as Real;
+                }
+                for i in 0..w {
+                    let bernstein: Real = (0..=i)
+                        .map(|kk| binomial(i, kk) / binomial(p, kk) * power[kk])
+                        .sum();
+                    d[a * w + i] = bernstein * binomial(p, i);
+                }
+            }
+            let pc = &mut pair_coefficients[cell * pairs * (2 * p + 1)..(cell + 1) * pairs * (2 * p + 1)];
+            for a in 0..w {
+                for c in a..w {
+                    let row = &mut pc[pair_index(a, c, p) * (2 * p + 1)..][..2 * p + 1];
+                    for i in 0..w {
+                        for j in 0..w {
+                            row[i + j] += d[a * w + i] * d[c * w + j];
+                        }
+                    }
+                }
+            }
+        }
+        SpanPolynomials {
+            degree: p,
+            starts,
+            inverse_widths,
+            coefficients,
+            pair_coefficients,
         }
     }
+
+    fn coefficients(&self, cell: usize) -> &[Real] {
+        let w = self.degree + 1;
+        &self.coefficients[cell * w * w..(cell + 1) * w * w]
+    }
+
+    fn pair_coefficients(&self, cell: usize) -> &[Real] {
+        let w = self.degree + 1;
+        let len = w * (w + 1) / 2 * (2 * self.degree + 1);
+        &self.pair_coefficients[cell * len..(cell + 1) * len]
+    }
+}
+
+/// `C(n, k)` as a real (n ≤ 2·MAX_DEGREE, exact in f64).
+fn binomial(n: usize, k: usize) -> Real {
+    (0..k).fold(1.0, |acc, i| acc * (n - i) as Real / (i + 1) as Real)
 }
 
 /// Index of the pair `(min(a, c), max(a, c))` among the upper-triangle pairs of `0..=p`.
@@ -661,6 +809,58 @@ mod tests {
             }
             assert_eq!(k, (p + 1) * (p + 2) / 2);
         }
+    }
+
+    /// The Bernstein form of each span reproduces the basis functions, with non-negative
+    /// coefficients (Bézier extraction), on non-uniform knots with a double knot.
+    #[test]
+    fn span_polynomials_reproduce_the_basis() {
+        use crate::bspline::basis_functions;
+        for degree in 0..=5 {
+            let mut knots = vec![0.0; degree + 1];
+            let interior: &[Real] = if degree == 0 {
+                &[0.1, 0.25, 0.6]
+            } else {
+                &[0.1, 0.25, 0.25, 0.6, 0.9]
+            };
+            knots.extend(interior);
+            knots.extend(vec![1.0; degree + 1]);
+            let k = KnotVector::new(degree, knots).unwrap();
+            let poly = SpanPolynomials::new(&k);
+            let w = degree + 1;
+            for cell in 0..k.num_control_points() - degree {
+                let span = cell + degree;
+                let (a, b) = (k.knots()[span], k.knots()[span + 1]);
+                if a == b {
+                    continue;
+                }
+                let d = poly.coefficients(cell);
+                assert!(d.iter().all(|&x| x > -1e-14), "degree {degree}: {d:?}");
+                // t < 1: the span's right end belongs to the next span.
+                for step in 0..10 {
+                    let t = step as Real / 10.0;
+                    let u = a + (b - a) * t;
+                    let mut n = vec![0.0; w];
+                    basis_functions(&k, span, u, &mut n);
+                    for (r, &expected) in n.iter().enumerate() {
+                        let value: Real = (0..w)
+                            .map(|i| d[r * w + i] * t.powi(i as i32) * (1.0 - t).powi((degree - i) as i32))
+                            .sum();
+                        assert!(
+                            (value - expected).abs() < 1e-12,
+                            "degree {degree} cell {cell} t {t}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn binomials_are_exact() {
+        assert_eq!(binomial(6, 3), 20.0);
+        assert_eq!(binomial(30, 15), 155_117_520.0);
+        assert_eq!(binomial(4, 0), 1.0);
     }
 
     #[test]
