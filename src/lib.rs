@@ -12,8 +12,11 @@
 //!   basis matrix, affine maps, JSON) and [`bspline::SurfaceFit`] (least-squares control grids
 //!   from up to millions of scattered samples).
 //!
-//! The face front ends (the 40-point structure, photo alignment, depth estimation) feed the
-//! kernel a transform; they are built on top of it.
+//! * [`structure`]: the paper's 40-point face structure (points, groups, mirror partners) and
+//!   its derivation from the 68-point iBUG annotation.
+//!
+//! The other face front ends (photo alignment, depth estimation) feed the kernel a transform;
+//! they are built on top of it.
 //!
 //! ## Conventions
 //!
@@ -29,6 +32,7 @@
 #![warn(missing_docs)]
 
 pub mod bspline;
+pub mod structure;
 
 /// The scalar type of all geometry.
 pub type Real = f64;

@@ -9,3 +9,4 @@ mod bspline_knots;
 mod bspline_serde;
 mod bspline_surface;
 mod common;
+mod structure;
