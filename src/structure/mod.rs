@@ -14,6 +14,16 @@
 //!
 //! Each point has a mirror partner (the point a left–right flip of the face puts in its
 //! place); points on the symmetry axis are their own partners.
+//!
+//! Also here: [`unify`] / [`unify_2d`] (the canonical frame: eye centres at `(±25, 0, 0)`),
+//! [`delaunay_edges`], the seven [`substructures`] of the paper's Fig. 3, [`edge_lengths`],
+//! [`ssim`] and the multi-substructure similarity [`multi_substructure_similarity`].
+
+mod frame;
+mod similarity;
+
+pub use frame::{HALF_EYE_DISTANCE, unify, unify_2d};
+pub use similarity::{delaunay_edges, edge_lengths, multi_substructure_similarity, ssim, substructures};
 
 use nalgebra::{Point, Point3, SVector};
 
@@ -140,6 +150,18 @@ pub enum StructureError {
         /// Its index in the input.
         index: usize,
     },
+    /// Two points share a position where they must not.
+    #[error("points {first} and {second} coincide")]
+    DuplicatePoint {
+        /// The first of them.
+        first: usize,
+        /// The second.
+        second: usize,
+    },
+    /// The two eye centres coincide (or are too far apart for their distance to be
+    /// represented), so no canonical frame exists.
+    #[error("the eye centres coincide, or their distance overflows")]
+    CoincidentEyes,
 }
 
 /// The 40 structure points from the 68 iBUG points, in 2D (image) or 3D.

@@ -123,3 +123,174 @@ fn bad_point_sets_are_errors() {
         Err(StructureError::WrongPointCount { expected: 40, .. })
     ));
 }
+
+mod frame_and_similarity {
+    use nalgebra::{
+        Isometry2, Point2, Point3, Similarity2, Similarity3, Translation3, UnitQuaternion, Vector2, Vector3,
+    };
+    use proptest::prelude::*;
+    use splineface::structure::{
+        LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE, StructureError, delaunay_edges, edge_lengths,
+        multi_substructure_similarity, ssim, substructures, unify, unify_2d,
+    };
+
+    use crate::common::Lcg;
+
+    fn random_structure(seed: u64) -> Vec<Point3<f64>> {
+        let mut rng = Lcg(seed);
+        (0..40)
+            .map(|_| {
+                Point3::new(
+                    rng.uniform(-60.0, 60.0),
+                    rng.uniform(-80.0, 40.0),
+                    rng.uniform(-10.0, 30.0),
+                )
+            })
+            .collect()
+    }
+
+    #[test]
+    fn unify_puts_the_eye_centres_in_place_and_keeps_shape() {
+        let s = random_structure(3);
+        let (sim, u) = unify(&s).unwrap();
+        assert!((u[RIGHT_EYE_CENTRE] - Point3::new(-25.0, 0.0, 0.0)).norm() < 1e-12);
+        assert!((u[LEFT_EYE_CENTRE] - Point3::new(25.0, 0.0, 0.0)).norm() < 1e-12);
+        let scale = 50.0 / (s[LEFT_EYE_CENTRE] - s[RIGHT_EYE_CENTRE]).norm();
+        assert!((sim.scaling() - scale).abs() < 1e-12);
+        for (i, j) in [(0, 39), (5, 17), (28, 30)] {
+            let ratio = (u[i] - u[j]).norm() / (s[i] - s[j]).norm();
+            assert!((ratio - scale).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn unify_undoes_roll_yaw_scale_and_translation() {
+        let (_, canonical) = unify(&random_structure(4)).unwrap();
+        for rotation in [
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.4),
+            UnitQuaternion::from_axis_angle(&Vector3::y_axis(), -0.7),
+        ] {
+            let moved = Similarity3::from_parts(Translation3::new(3.0, -7.0, 11.0), rotation, 2.5);
+            let s: Vec<Point3<f64>> = canonical.iter().map(|p| moved * p).collect();
+            let (_, back) = unify(&s).unwrap();
+            for (a, b) in back.iter().zip(&canonical) {
+                assert!((a - b).norm() < 1e-10, "{a} vs {b}");
+            }
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn unify_2d_is_invariant_under_similarities(angle in -3.1..3.1f64, scale in 0.1..10.0f64, tx in -100.0..100.0f64, ty in -100.0..100.0f64, seed in any::<u64>()) {
+            let s: Vec<Point2<f64>> = random_structure(seed).iter().map(|p| p.xy()).collect();
+            let moved = Similarity2::from_isometry(Isometry2::new(Vector2::new(tx, ty), angle), scale);
+            let t: Vec<Point2<f64>> = s.iter().map(|p| moved * p).collect();
+            let (_, a) = unify_2d(&s).unwrap();
+            let (_, b) = unify_2d(&t).unwrap();
+            for (p, q) in a.iter().zip(&b) {
+                prop_assert!((p - q).norm() < 1e-8);
+            }
+            prop_assert!((a[LEFT_EYE_CENTRE] - Point2::new(25.0, 0.0)).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn coincident_eyes_are_an_error() {
+        let mut s = random_structure(5);
+        s[LEFT_EYE_CENTRE] = s[RIGHT_EYE_CENTRE];
+        assert_eq!(unify(&s).unwrap_err(), StructureError::CoincidentEyes);
+    }
+
+    /// Convex hull vertex count by Andrew's monotone chain (independent of spade).
+    fn hull_size(points: &[Point2<f64>]) -> usize {
+        let mut p: Vec<Point2<f64>> = points.to_vec();
+        p.sort_by(|a, b| {
+            a.x.partial_cmp(&b.x)
+                .unwrap()
+                .then(a.y.partial_cmp(&b.y).unwrap())
+        });
+        let cross = |o: Point2<f64>, a: Point2<f64>, b: Point2<f64>| (a - o).perp(&(b - o));
+        let mut hull: Vec<Point2<f64>> = Vec::new();
+        for pass in 0..2 {
+            let start = hull.len();
+            let iter: Box<dyn Iterator<Item = &Point2<f64>>> = if pass == 0 {
+                Box::new(p.iter())
+            } else {
+                Box::new(p.iter().rev())
+            };
+            for &q in iter {
+                while hull.len() >= start + 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], q) <= 0.0 {
+                    hull.pop();
+                }
+                hull.push(q);
+            }
+            hull.pop();
+        }
+        hull.len()
+    }
+
+    #[test]
+    fn delaunay_edges_satisfy_euler_and_substructures_partition_them() {
+        for seed in 0..20 {
+            let frontal: Vec<Point2<f64>> = random_structure(seed).iter().map(|p| p.xy()).collect();
+            let edges = delaunay_edges(&frontal).unwrap();
+            let h = hull_size(&frontal);
+            assert_eq!(edges.len(), 3 * 40 - 3 - h, "Euler: E = 3n − 3 − h (seed {seed})");
+            assert!(edges.windows(2).all(|w| w[0] < w[1]) && edges.iter().all(|&[a, b]| a < b && b < 40));
+            let groups = substructures(&edges);
+            assert_eq!(groups[0].len(), edges.len());
+            // G2..G7 partition G1: every edge is in exactly one of them.
+            let mut seen = vec![0; edges.len()];
+            for g in &groups[1..] {
+                for &k in g {
+                    seen[k] += 1;
+                }
+            }
+            assert!(seen.iter().all(|&c| c == 1), "seed {seed}: {seen:?}");
+        }
+        let mut dup: Vec<Point2<f64>> = random_structure(1).iter().map(|p| p.xy()).collect();
+        dup[7] = dup[3];
+        assert_eq!(
+            delaunay_edges(&dup),
+            Err(StructureError::DuplicatePoint { first: 3, second: 7 })
+        );
+    }
+
+    #[test]
+    fn ssim_is_one_on_itself_and_drops_with_distortion() {
+        let s = random_structure(9);
+        let frontal: Vec<Point2<f64>> = s.iter().map(|p| p.xy()).collect();
+        let edges = delaunay_edges(&frontal).unwrap();
+        let groups = substructures(&edges);
+        let reference = edge_lengths(&s, &edges);
+        let range = reference.iter().copied().fold(0.0, f64::max);
+        assert!((ssim(&reference, &reference, range) - 1.0).abs() < 1e-15);
+        assert!((multi_substructure_similarity(&reference, &reference, &groups) - 1.0).abs() < 1e-15);
+        let mut rng = Lcg(2);
+        let noise: Vec<Vector3<f64>> = (0..40)
+            .map(|_| {
+                Vector3::new(
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(-1.0, 1.0),
+                )
+            })
+            .collect();
+        let mut last = (1.0, 1.0);
+        for amplitude in [1.0, 3.0, 9.0] {
+            let distorted: Vec<Point3<f64>> = s.iter().zip(&noise).map(|(p, n)| p + n * amplitude).collect();
+            let lengths = edge_lengths(&distorted, &edges);
+            let one = ssim(&reference, &lengths, range);
+            let all = multi_substructure_similarity(&reference, &lengths, &groups);
+            assert!(
+                one < last.0 && all < last.1 && all > 0.0,
+                "amplitude {amplitude}: {one} {all}"
+            );
+            assert!(
+                (ssim(&lengths, &reference, range) - one).abs() < 1e-15,
+                "symmetric"
+            );
+            last = (one, all);
+        }
+    }
+}
