@@ -32,6 +32,7 @@
 #![warn(missing_docs)]
 
 pub mod bspline;
+pub mod landmarks;
 pub mod structure;
 
 /// The scalar type of all geometry.

@@ -9,4 +9,5 @@ mod bspline_knots;
 mod bspline_serde;
 mod bspline_surface;
 mod common;
+mod landmarks;
 mod structure;
