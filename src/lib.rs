@@ -32,7 +32,9 @@
 #![warn(missing_docs)]
 
 pub mod bspline;
+pub mod io;
 pub mod landmarks;
+pub mod mesh;
 pub mod structure;
 
 /// The scalar type of all geometry.

@@ -10,4 +10,5 @@ mod bspline_serde;
 mod bspline_surface;
 mod common;
 mod landmarks;
+mod mesh;
 mod structure;

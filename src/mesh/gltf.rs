@@ -1,0 +1,250 @@
+//! glTF 2.0 (`.gltf` with external or embedded buffers, and binary `.glb`), read only.
+
+use std::path::Path;
+
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
+use nalgebra::{Matrix4, Point2, Point3};
+
+use super::{MeshProblem, TextureCoordinates, TriangleMesh, syntax};
+use crate::Real;
+
+/// Reads the triangles of a glTF file's scene (see [`super::read_mesh`]).
+pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
+    let gltf = gltf::Gltf::open(path).map_err(gltf_problem)?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let buffers =
+        gltf::import_buffers(&gltf.document, Some(base), gltf.blob.clone()).map_err(gltf_problem)?;
+    let document = &gltf.document;
+    let mut builder = Builder::default();
+    let scene = document.default_scene().or_else(|| document.scenes().next());
+    match scene {
+        Some(scene) => {
+            for node in scene.nodes() {
+                builder.node(&node, &Matrix4::identity(), &buffers, 0, document.nodes().len())?;
+            }
+        }
+        None => {
+            for mesh in document.meshes() {
+                builder.mesh(&mesh, &Matrix4::identity(), &buffers)?;
+            }
+        }
+    }
+    builder.finish()
+}
+
+fn gltf_problem(error: gltf::Error) -> MeshProblem {
+    match error {
+        gltf::Error::Io(e) => MeshProblem::Io(e),
+        other => syntax("glTF", other.to_string()),
+    }
+}
+
+#[derive(Default)]
+struct Builder {
+    positions: Vec<Point3<Real>>,
+    triangles: Vec<[u32; 3]>,
+    uvs: Vec<Point2<Real>>,
+    /// Whether every primitive so far had texture coordinates.
+    textured: bool,
+    primitives: usize,
+}
+
+/// Checks that an accessor can be read as `dimensions` of one of `types`: present, dense,
+/// non-empty, in a buffer view. The `gltf` reader itself bounds-checks the view against its
+/// buffer; these are the cases where it would panic or misread instead.
+fn check_accessor(
+    accessor: &gltf::Accessor,
+    dimensions: Dimensions,
+    types: &[DataType],
+    what: &str,
+) -> Result<(), MeshProblem> {
+    let location = || format!("accessor {} ({what})", accessor.index());
+    if accessor.sparse().is_some() {
+        return Err(MeshProblem::Unsupported(format!(
+            "{}: sparse accessors",
+            location()
+        )));
+    }
+    if accessor.view().is_none() {
+        return Err(syntax(location(), "no buffer view"));
+    }
+    if accessor.count() == 0 {
+        return Err(syntax(location(), "no elements"));
+    }
+    if accessor.dimensions() != dimensions || !types.contains(&accessor.data_type()) {
+        return Err(syntax(
+            location(),
+            format!(
+                "{:?} of {:?}, expected {dimensions:?} of one of {types:?}",
+                accessor.dimensions(),
+                accessor.data_type()
+            ),
+        ));
+    }
+    if let Some(stride) = accessor.view().and_then(|v| v.stride())
+        && stride < accessor.size()
+    {
+        return Err(syntax(
+            location(),
+            format!("stride {stride} is below the element size"),
+        ));
+    }
+    Ok(())
+}
+
+impl Builder {
+    fn node(
+        &mut self,
+        node: &gltf::Node,
+        parent: &Matrix4<Real>,
+        buffers: &[gltf::buffer::Data],
+        depth: usize,
+        nodes: usize,
+    ) -> Result<(), MeshProblem> {
+        if depth > nodes {
+            return Err(syntax(
+                format!("node {}", node.index()),
+                "the node hierarchy has a cycle",
+            ));
+        }
+        let local = node.transform().matrix();
+        let local = Matrix4::from_fn(|r, c| Real::from(local[c][r]));
+        let world = parent * local;
+        if let Some(mesh) = node.mesh() {
+            self.mesh(&mesh, &world, buffers)?;
+        }
+        for child in node.children() {
+            self.node(&child, &world, buffers, depth + 1, nodes)?;
+        }
+        Ok(())
+    }
+
+    fn mesh(
+        &mut self,
+        mesh: &gltf::Mesh,
+        world: &Matrix4<Real>,
+        buffers: &[gltf::buffer::Data],
+    ) -> Result<(), MeshProblem> {
+        for primitive in mesh.primitives() {
+            let location = || format!("mesh {} primitive {}", mesh.index(), primitive.index());
+            let mode = primitive.mode();
+            if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+                return Err(MeshProblem::Unsupported(format!(
+                    "{}: {mode:?} primitives",
+                    location()
+                )));
+            }
+            let positions_accessor = primitive
+                .get(&gltf::Semantic::Positions)
+                .ok_or_else(|| syntax(location(), "no POSITION attribute"))?;
+            check_accessor(
+                &positions_accessor,
+                Dimensions::Vec3,
+                &[DataType::F32],
+                "POSITION",
+            )?;
+            let reader = primitive.reader(|buffer| buffers.get(buffer.index()).map(|data| &data[..]));
+            let truncated = |what: &str| {
+                MeshProblem::Truncated(format!("{}: {what} lies outside its buffer", location()))
+            };
+            let offset = self.positions.len();
+            let count = positions_accessor.count();
+            for p in reader.read_positions().ok_or_else(|| truncated("POSITION"))? {
+                let p = Point3::new(Real::from(p[0]), Real::from(p[1]), Real::from(p[2]));
+                let q = world.transform_point(&p);
+                if !q.iter().all(|c| c.is_finite()) {
+                    return Err(MeshProblem::NonFinite {
+                        location: format!("{} vertex {}", location(), self.positions.len() - offset),
+                    });
+                }
+                self.positions.push(q);
+            }
+            let indices: Vec<u32> = match primitive.indices() {
+                Some(accessor) => {
+                    check_accessor(
+                        &accessor,
+                        Dimensions::Scalar,
+                        &[DataType::U8, DataType::U16, DataType::U32],
+                        "indices",
+                    )?;
+                    let indices = reader
+                        .read_indices()
+                        .ok_or_else(|| truncated("the index accessor"))?;
+                    indices.into_u32().collect()
+                }
+                None => (0..u32::try_from(count).map_err(|_| MeshProblem::TooLarge(location()))?).collect(),
+            };
+            if let Some(&bad) = indices.iter().find(|&&i| i as usize >= count) {
+                return Err(MeshProblem::IndexOutOfRange {
+                    location: location(),
+                    index: bad.into(),
+                    count,
+                    what: "vertices",
+                });
+            }
+            let base = u32::try_from(offset).map_err(|_| MeshProblem::TooLarge(location()))?;
+            let corners: Vec<[u32; 3]> = match mode {
+                Mode::Triangles => {
+                    if !indices.len().is_multiple_of(3) {
+                        return Err(syntax(
+                            location(),
+                            format!("{} indices, not a multiple of 3", indices.len()),
+                        ));
+                    }
+                    indices.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+                }
+                // Every other strip triangle is flipped to keep a consistent orientation.
+                Mode::TriangleStrip => (0..indices.len().saturating_sub(2))
+                    .map(|k| {
+                        let (a, b, c) = (indices[k], indices[k + 1], indices[k + 2]);
+                        if k % 2 == 0 { [a, b, c] } else { [b, a, c] }
+                    })
+                    .collect(),
+                _ => (1..indices.len().saturating_sub(1))
+                    .map(|k| [indices[0], indices[k], indices[k + 1]])
+                    .collect(),
+            };
+            self.triangles.extend(corners.iter().map(|t| t.map(|i| i + base)));
+            let uvs = match primitive.get(&gltf::Semantic::TexCoords(0)) {
+                Some(accessor) => {
+                    check_accessor(
+                        &accessor,
+                        Dimensions::Vec2,
+                        &[DataType::F32, DataType::U8, DataType::U16],
+                        "TEXCOORD_0",
+                    )?;
+                    if accessor.count() != count {
+                        return Err(syntax(location(), "TEXCOORD_0 and POSITION differ in count"));
+                    }
+                    let read = reader.read_tex_coords(0).ok_or_else(|| truncated("TEXCOORD_0"))?;
+                    // glTF's v runs down the image, OBJ's and PLY's up: flip to the latter.
+                    Some(
+                        read.into_f32()
+                            .map(|t| Point2::new(Real::from(t[0]), 1.0 - Real::from(t[1]))),
+                    )
+                }
+                None => None,
+            };
+            self.textured = (self.primitives == 0 || self.textured) && uvs.is_some();
+            if let Some(uvs) = uvs {
+                self.uvs.extend(uvs);
+            }
+            self.primitives += 1;
+        }
+        Ok(())
+    }
+
+    fn finish(self) -> Result<TriangleMesh, MeshProblem> {
+        let mesh = TriangleMesh::new(self.positions, self.triangles)?;
+        if self.textured && self.uvs.len() == mesh.positions().len() {
+            let triangles = mesh.triangles().to_vec();
+            mesh.with_texture(TextureCoordinates {
+                uvs: self.uvs,
+                triangles,
+            })
+        } else {
+            Ok(mesh)
+        }
+    }
+}

@@ -1,0 +1,291 @@
+//! Triangle meshes and their files: OBJ, PLY (ASCII and binary) and glTF/GLB in; OBJ and PLY
+//! out.
+//!
+//! A [`TriangleMesh`] keeps its vertices **in file order**, because landmark files name scan
+//! vertices by their index in the file (see [`crate::landmarks::read_vertex_indices`]).
+//! Polygons are fan-triangulated. Texture coordinates are kept as their own indexed array
+//! ([`TextureCoordinates`]), one index triple per triangle, as OBJ stores them, so that a
+//! vertex on a texture seam needs no duplicating.
+//!
+//! Every reader validates what it reads and reports the first problem with the file's name and
+//! where in it (line, element or accessor), never panicking. Writers write all or nothing
+//! ([`crate::io::write_atomically`]).
+//!
+//! Why not `tobj` for OBJ: it renumbers vertices by their first use in faces, which breaks
+//! vertex-index landmarks. The test suite checks this reader against `tobj` on geometry.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Affine3, Point2, Point3};
+
+use crate::Real;
+
+mod gltf;
+mod obj;
+mod ply;
+
+pub use obj::{format_obj, parse_obj};
+pub use ply::{PlyEncoding, encode_ply, parse_ply};
+
+/// Texture coordinates of a mesh (`v` up, as in OBJ and PLY; glTF's are flipped on reading):
+/// a `uv` array and, for each triangle of the mesh, the indices
+/// of its three corners' coordinates in it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TextureCoordinates {
+    /// The coordinates.
+    pub uvs: Vec<Point2<Real>>,
+    /// One triple per triangle of the mesh, indexing `uvs`.
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// A triangle mesh: vertex positions in file order, triangles as index triples, and optional
+/// texture coordinates.
+///
+/// Invariants (checked by [`TriangleMesh::new`] and [`TriangleMesh::with_texture`]): every
+/// coordinate is finite, every index is in range, there are as many texture triangles as
+/// triangles.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TriangleMesh {
+    positions: Vec<Point3<Real>>,
+    triangles: Vec<[u32; 3]>,
+    texture: Option<TextureCoordinates>,
+}
+
+/// A mesh file that could not be read or written.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {problem}", file.display())]
+pub struct MeshError {
+    /// The file.
+    pub file: PathBuf,
+    /// What is wrong.
+    pub problem: MeshProblem,
+}
+
+/// What is wrong with a mesh or a mesh file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeshProblem {
+    /// The file could not be read or written.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// The file's extension names no format this crate reads or writes.
+    #[error("unknown mesh format (expected .obj, .ply, .gltf or .glb; writing: .obj or .ply)")]
+    UnknownFormat,
+    /// A line or a header field is malformed.
+    #[error("{location}: {message}")]
+    Syntax {
+        /// Where: `line 12`, `vertex 7`, `accessor 3`, …
+        location: String,
+        /// What was expected.
+        message: String,
+    },
+    /// A coordinate is NaN or infinite.
+    #[error("{location}: a coordinate is not finite")]
+    NonFinite {
+        /// Where.
+        location: String,
+    },
+    /// An index refers past the end of what it indexes.
+    #[error("{location}: index {index} is out of range ({count} {what})")]
+    IndexOutOfRange {
+        /// Where.
+        location: String,
+        /// The index.
+        index: i64,
+        /// How many there are.
+        count: usize,
+        /// Of what: `vertices`, `texture coordinates`.
+        what: &'static str,
+    },
+    /// The file ends before the data it announces.
+    #[error("the file is truncated: {0}")]
+    Truncated(String),
+    /// The file holds no triangle.
+    #[error("no triangles")]
+    Empty,
+    /// More vertices or triangles than a `u32` index can address.
+    #[error("too large: {0}")]
+    TooLarge(String),
+    /// A valid file using something this reader does not support.
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+}
+
+pub(crate) fn syntax(location: impl Into<String>, message: impl Into<String>) -> MeshProblem {
+    MeshProblem::Syntax {
+        location: location.into(),
+        message: message.into(),
+    }
+}
+
+impl TriangleMesh {
+    /// A mesh without texture coordinates.
+    ///
+    /// # Errors
+    /// [`MeshProblem::Empty`] without triangles, [`MeshProblem::NonFinite`] for a NaN or
+    /// infinite coordinate, [`MeshProblem::IndexOutOfRange`] for a bad index.
+    pub fn new(positions: Vec<Point3<Real>>, triangles: Vec<[u32; 3]>) -> Result<Self, MeshProblem> {
+        if triangles.is_empty() {
+            return Err(MeshProblem::Empty);
+        }
+        if u32::try_from(positions.len()).is_err() {
+            return Err(MeshProblem::TooLarge(format!("{} vertices", positions.len())));
+        }
+        if let Some(k) = positions.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(MeshProblem::NonFinite {
+                location: format!("vertex {k}"),
+            });
+        }
+        check_indices(&triangles, positions.len(), "vertices")?;
+        Ok(Self {
+            positions,
+            triangles,
+            texture: None,
+        })
+    }
+
+    /// This mesh with texture coordinates (replacing any it had).
+    ///
+    /// # Errors
+    /// [`MeshProblem::Syntax`] if the texture has another number of triangles than the mesh,
+    /// [`MeshProblem::NonFinite`] or [`MeshProblem::IndexOutOfRange`] as for positions.
+    pub fn with_texture(mut self, texture: TextureCoordinates) -> Result<Self, MeshProblem> {
+        if texture.triangles.len() != self.triangles.len() {
+            return Err(syntax(
+                "texture coordinates",
+                format!(
+                    "{} texture triangles for {} triangles",
+                    texture.triangles.len(),
+                    self.triangles.len()
+                ),
+            ));
+        }
+        if let Some(k) = texture.uvs.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+            return Err(MeshProblem::NonFinite {
+                location: format!("texture coordinate {k}"),
+            });
+        }
+        check_indices(&texture.triangles, texture.uvs.len(), "texture coordinates")?;
+        self.texture = Some(texture);
+        Ok(self)
+    }
+
+    /// The vertex positions, in file order.
+    pub fn positions(&self) -> &[Point3<Real>] {
+        &self.positions
+    }
+
+    /// The triangles, as indices into [`TriangleMesh::positions`], counter-clockwise seen from
+    /// the front as the source file had them.
+    pub fn triangles(&self) -> &[[u32; 3]] {
+        &self.triangles
+    }
+
+    /// The texture coordinates, if the source had them for every triangle.
+    pub fn texture(&self) -> Option<&TextureCoordinates> {
+        self.texture.as_ref()
+    }
+
+    /// The mesh with every position mapped by `transform` (texture coordinates unchanged).
+    pub fn transformed(&self, transform: &Affine3<Real>) -> Self {
+        Self {
+            positions: self.positions.iter().map(|p| transform * p).collect(),
+            triangles: self.triangles.clone(),
+            texture: self.texture.clone(),
+        }
+    }
+
+    /// The positions of triangle `k`'s corners.
+    pub fn triangle(&self, k: usize) -> [Point3<Real>; 3] {
+        self.triangles[k].map(|i| self.positions[i as usize])
+    }
+}
+
+fn check_indices(triangles: &[[u32; 3]], count: usize, what: &'static str) -> Result<(), MeshProblem> {
+    for (k, t) in triangles.iter().enumerate() {
+        if let Some(&index) = t.iter().find(|&&i| i as usize >= count) {
+            return Err(MeshProblem::IndexOutOfRange {
+                location: format!("triangle {k}"),
+                index: index.into(),
+                count,
+                what,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// A mesh file format, chosen by file extension (case-insensitive).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MeshFormat {
+    /// Wavefront OBJ (`.obj`).
+    Obj,
+    /// Stanford PLY (`.ply`), ASCII or binary.
+    Ply,
+    /// glTF 2.0 (`.gltf` with its buffers, or binary `.glb`); read only.
+    Gltf,
+}
+
+impl MeshFormat {
+    /// The format a path's extension names, if any.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let extension = path.extension()?.to_str()?.to_ascii_lowercase();
+        match extension.as_str() {
+            "obj" => Some(Self::Obj),
+            "ply" => Some(Self::Ply),
+            "gltf" | "glb" => Some(Self::Gltf),
+            _ => None,
+        }
+    }
+}
+
+/// Reads a mesh, choosing the reader by the file's extension.
+///
+/// For glTF, the meshes of the default scene (or of the first scene, or every mesh when the
+/// file has no scene) are placed by their nodes' transforms and concatenated in traversal
+/// order; vertex indices count through the primitives in that order.
+///
+/// # Errors
+/// A [`MeshError`] naming the file and the first problem.
+pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MeshError> {
+    let error = |problem| MeshError {
+        file: path.to_path_buf(),
+        problem,
+    };
+    match MeshFormat::from_path(path) {
+        None => Err(error(MeshProblem::UnknownFormat)),
+        Some(MeshFormat::Obj) => {
+            let bytes = std::fs::read(path).map_err(|e| error(e.into()))?;
+            let text = std::str::from_utf8(&bytes).map_err(|e| {
+                error(syntax(
+                    format!("byte {}", e.valid_up_to()),
+                    "the file is not UTF-8 text",
+                ))
+            })?;
+            parse_obj(text).map_err(error)
+        }
+        Some(MeshFormat::Ply) => {
+            let bytes = std::fs::read(path).map_err(|e| error(e.into()))?;
+            parse_ply(&bytes).map_err(error)
+        }
+        Some(MeshFormat::Gltf) => gltf::read_gltf(path).map_err(error),
+    }
+}
+
+/// Writes a mesh as OBJ or PLY (binary little-endian, `f64` coordinates), choosing by the
+/// file's extension; all or nothing. Both forms read back exactly.
+///
+/// # Errors
+/// A [`MeshError`] naming the file: an extension other than `.obj` or `.ply`, or an I/O error.
+pub fn write_mesh(path: &Path, mesh: &TriangleMesh) -> Result<(), MeshError> {
+    let error = |problem| MeshError {
+        file: path.to_path_buf(),
+        problem,
+    };
+    let bytes = match MeshFormat::from_path(path) {
+        Some(MeshFormat::Obj) => format_obj(mesh).into_bytes(),
+        Some(MeshFormat::Ply) => encode_ply(mesh, PlyEncoding::BinaryLittleEndian),
+        _ => return Err(error(MeshProblem::UnknownFormat)),
+    };
+    crate::io::write_atomically(path, &bytes).map_err(|e| error(e.into()))
+}

@@ -1,0 +1,419 @@
+//! Mesh files: hand-worked OBJ/PLY/GLB files, exact round trips, rejection of malformed input,
+//! and the real ICT scan checked against `tobj`.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Point2, Point3};
+use proptest::prelude::*;
+use splineface::mesh::{
+    MeshProblem, PlyEncoding, TextureCoordinates, TriangleMesh, encode_ply, format_obj, parse_obj, parse_ply,
+    read_mesh, write_mesh,
+};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("splineface-mesh-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+const SQUARE_OBJ: &str = "\
+# a unit square and an unused vertex, which must keep its place
+o square
+v 0 0 0
+v 1 0 0
+v 9 9 9 0.5 0.5 0.5
+v 1 1 0
+v 0 1 0
+vt 0 0
+vt 1 0
+vt 1 1
+vt 0 1
+vn 0 0 1
+s off
+f 1/1/1 2/2/1 4/3/1 5/4/1
+f -5/1 -4/2 -2/3
+";
+
+#[test]
+fn obj_reads_in_file_order_and_fans_polygons() {
+    let mesh = parse_obj(SQUARE_OBJ).unwrap();
+    assert_eq!(mesh.positions().len(), 5);
+    assert_eq!(mesh.positions()[2], Point3::new(9.0, 9.0, 9.0));
+    // The quad fans from its first corner; the relative face resolves against 5 vertices.
+    assert_eq!(mesh.triangles(), &[[0, 1, 3], [0, 3, 4], [0, 1, 3]]);
+    let texture = mesh.texture().unwrap();
+    assert_eq!(texture.triangles, vec![[0, 1, 2], [0, 2, 3], [0, 1, 2]]);
+    assert_eq!(texture.uvs[2], Point2::new(1.0, 1.0));
+}
+
+#[test]
+fn obj_with_partial_texture_drops_it() {
+    let mesh = parse_obj("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1\nf 1 2 3\n").unwrap();
+    assert!(mesh.texture().is_none());
+    assert_eq!(mesh.triangles().len(), 2);
+}
+
+fn problem(text: &str) -> MeshProblem {
+    parse_obj(text).unwrap_err()
+}
+
+#[test]
+fn obj_rejects_malformed_input() {
+    let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+    let cases = [
+        (
+            format!("{tri}f 1 2 4\n"),
+            "line 4: index 4 is out of range (3 vertices)",
+        ),
+        (format!("{tri}f 0 1 2\n"), "line 4: index 0 is out of range"),
+        (
+            format!("{tri}f 1 2\n"),
+            "line 4: a face needs at least three corners",
+        ),
+        (format!("{tri}f 1 2 -4\n"), "line 4: index 0 is out of range"),
+        (format!("{tri}f 1/9 2/9 3/9\n"), "texture coordinates"),
+        (format!("{tri}f 1 2 x\n"), "line 4: `x` is not a face corner"),
+        (
+            format!("v 0 NaN 0\n{tri}f 1 2 3\n"),
+            "line 1: a coordinate is not finite",
+        ),
+        (
+            format!("v 0 inf 0\n{tri}f 1 2 3\n"),
+            "line 1: a coordinate is not finite",
+        ),
+        (
+            "v 0 0\nf 1 1 1\n".to_owned(),
+            "line 1: expected at least 3 numbers",
+        ),
+        ("v 0 0 zero\n".to_owned(), "line 1: `zero` is not a number"),
+        (tri.to_owned(), "no triangles"),
+        (format!("{tri}f 1/1/1/1 2 3\n"), "is not a face corner"),
+    ];
+    for (text, expected) in cases {
+        let message = problem(&text).to_string();
+        assert!(
+            message.contains(expected),
+            "{text:?}: got {message:?}, expected {expected:?}"
+        );
+    }
+}
+
+/// A random mesh: `n` vertices, `m` triangles, optional per-corner texture.
+fn random_mesh() -> impl Strategy<Value = TriangleMesh> {
+    (3usize..40, 1usize..60, any::<bool>(), any::<bool>()).prop_flat_map(|(n, m, textured, per_vertex)| {
+        (
+            proptest::collection::vec(proptest::array::uniform3(-1e6f64..1e6), n),
+            proptest::collection::vec(proptest::array::uniform3(0..n as u32), m),
+            proptest::collection::vec(proptest::array::uniform2(-2f64..2.0), 1..50),
+        )
+            .prop_map(move |(positions, triangles, uvs)| {
+                let positions = positions.into_iter().map(Point3::from).collect();
+                let mesh = TriangleMesh::new(positions, triangles.clone()).unwrap();
+                if !textured {
+                    return mesh;
+                }
+                let texture = if per_vertex {
+                    TextureCoordinates {
+                        uvs: (0..n).map(|k| Point2::from(uvs[k % uvs.len()])).collect(),
+                        triangles,
+                    }
+                } else {
+                    let len = uvs.len() as u32;
+                    TextureCoordinates {
+                        triangles: triangles.iter().map(|t| t.map(|i| (i * 7 + 3) % len)).collect(),
+                        uvs: uvs.into_iter().map(Point2::from).collect(),
+                    }
+                };
+                mesh.with_texture(texture).unwrap()
+            })
+    })
+}
+
+/// Each triangle's three texture coordinates, for comparing textures indexed differently.
+fn corner_uvs(mesh: &TriangleMesh) -> Option<Vec<[Point2<f64>; 3]>> {
+    mesh.texture()
+        .map(|t| t.triangles.iter().map(|c| c.map(|i| t.uvs[i as usize])).collect())
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+
+    #[test]
+    fn obj_round_trip_is_exact(mesh in random_mesh()) {
+        prop_assert_eq!(parse_obj(&format_obj(&mesh)).unwrap(), mesh);
+    }
+
+    #[test]
+    fn ply_round_trips_are_exact(mesh in random_mesh()) {
+        for encoding in [PlyEncoding::Ascii, PlyEncoding::BinaryLittleEndian] {
+            let back = parse_ply(&encode_ply(&mesh, encoding)).unwrap();
+            prop_assert_eq!(back.positions(), mesh.positions());
+            prop_assert_eq!(back.triangles(), mesh.triangles());
+            prop_assert_eq!(corner_uvs(&back), corner_uvs(&mesh));
+        }
+    }
+
+    /// No prefix of a valid binary file reads as a mesh, and none panics.
+    #[test]
+    fn truncated_ply_is_refused(mesh in random_mesh(), cut in 0.0f64..1.0) {
+        let bytes = encode_ply(&mesh, PlyEncoding::BinaryLittleEndian);
+        let keep = ((bytes.len() - 1) as f64 * cut) as usize;
+        prop_assert!(parse_ply(&bytes[..keep]).is_err());
+    }
+}
+
+/// A hand-built big-endian PLY: float32 coordinates, a colour property, an extra element
+/// before the faces, a quad.
+#[test]
+fn ply_big_endian_with_extras() {
+    let mut bytes = b"ply\nformat binary_big_endian 1.0\ncomment hand-made\nelement vertex 4\n\
+property float x\nproperty float y\nproperty float z\nproperty uchar red\n\
+element material 2\nproperty list uchar int ids\n\
+element face 1\nproperty uchar flags\nproperty list uchar int vertex_indices\nend_header\n"
+        .to_vec();
+    for (k, p) in [
+        [0.0f32, 0.0, 0.0],
+        [1.0, 0.0, 0.5],
+        [1.0, 1.0, 0.0],
+        [0.0, 1.0, -0.25],
+    ]
+    .iter()
+    .enumerate()
+    {
+        for c in p {
+            bytes.extend_from_slice(&c.to_be_bytes());
+        }
+        bytes.push(k as u8);
+    }
+    for _ in 0..2 {
+        bytes.push(2);
+        bytes.extend_from_slice(&7i32.to_be_bytes());
+        bytes.extend_from_slice(&8i32.to_be_bytes());
+    }
+    bytes.push(0xff);
+    bytes.push(4);
+    for i in [0i32, 1, 2, 3] {
+        bytes.extend_from_slice(&i.to_be_bytes());
+    }
+    let mesh = parse_ply(&bytes).unwrap();
+    assert_eq!(mesh.positions()[1], Point3::new(1.0, 0.0, 0.5));
+    assert_eq!(mesh.positions()[3], Point3::new(0.0, 1.0, -0.25));
+    assert_eq!(mesh.triangles(), &[[0, 1, 2], [0, 2, 3]]);
+    assert!(mesh.texture().is_none());
+    // One byte more is refused.
+    bytes.push(0);
+    assert!(
+        parse_ply(&bytes)
+            .unwrap_err()
+            .to_string()
+            .contains("data after the last element")
+    );
+}
+
+#[test]
+fn ply_ascii_with_vertex_uvs() {
+    let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n\
+property double z\nproperty float s\nproperty float t\nelement face 1\n\
+property list uchar uint vertex_index\nend_header\n0 0 0 0 0\n1 0 0 1 0\n0 1 0 0 1\n3 0 1 2\n";
+    let mesh = parse_ply(text.as_bytes()).unwrap();
+    let texture = mesh.texture().unwrap();
+    assert_eq!(texture.uvs[2], Point2::new(0.0, 1.0));
+    assert_eq!(texture.triangles, mesh.triangles());
+}
+
+#[test]
+fn ply_rejects_malformed_input() {
+    let head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty double x\nproperty double y\n\
+property double z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    let cases = [
+        (
+            format!("{head}0 0 0\n1 0 0\n0 1 0\n3 0 1 3\n"),
+            "face 0: index 3 is out of range (3 vertices)",
+        ),
+        (
+            format!("{head}0 0 0\n1 0 0\n0 1 0\n3 0 -1 2\n"),
+            "face 0: index -1 is out of range",
+        ),
+        (
+            format!("{head}0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n"),
+            "vertex 1: a coordinate is not finite",
+        ),
+        (
+            format!("{head}0 0 0\n1 0 0\n0 1 0\n2 0 1\n"),
+            "face 0: a face needs at least three corners",
+        ),
+        (
+            format!("{head}0 0 0\n1 0 0\n"),
+            "truncated: vertex 2 is incomplete",
+        ),
+        (
+            format!("{head}0 0 0\n1 0 0\n0 one 0\n3 0 1 2\n"),
+            "vertex 2: `one` is not a number",
+        ),
+        (
+            head.replace("property double z\n", ""),
+            "the vertex element has no `z`",
+        ),
+        (head.replace("format ascii 1.0\n", ""), "no `format` line"),
+        (head.replace("double x", "complex x"), "unknown type `complex`"),
+        (head.replace("ply\n", "plx\n"), "not a PLY file"),
+        ("ply\nformat ascii 1.0\n".to_owned(), "no `end_header` line"),
+    ];
+    for (text, expected) in cases {
+        let message = parse_ply(text.as_bytes()).unwrap_err().to_string();
+        assert!(
+            message.contains(expected),
+            "{text:?}: got {message:?}, expected {expected:?}"
+        );
+    }
+}
+
+/// A GLB with two nodes sharing one mesh (u16 indices, TEXCOORD_0), one translated and one a
+/// child of a scaled parent.
+fn glb() -> Vec<u8> {
+    let positions: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let uvs: [[f32; 2]; 3] = [[0.0, 0.0], [1.0, 0.0], [0.0, 0.25]];
+    let indices: [u16; 4] = [0, 1, 2, 0]; // three used, one of padding
+    let mut bin = Vec::new();
+    for p in positions.iter().flatten().chain(uvs.iter().flatten()) {
+        bin.extend_from_slice(&p.to_le_bytes());
+    }
+    for i in indices {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0, 1]}],
+        "nodes": [
+            {"mesh": 0, "translation": [10.0, 0.0, 0.0]},
+            {"scale": [2.0, 2.0, 2.0], "children": [2]},
+            {"mesh": 0}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "indices": 2}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 24},
+            {"buffer": 0, "byteOffset": 60, "byteLength": 8}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+             "min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 0.0]},
+            {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC2"},
+            {"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"}
+        ]
+    });
+    let mut json = serde_json::to_vec(&json).unwrap();
+    while !json.len().is_multiple_of(4) {
+        json.push(b' ');
+    }
+    let total = 12 + 8 + json.len() + 8 + bin.len();
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&json);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
+#[test]
+fn glb_places_meshes_by_their_nodes() {
+    let path = scratch("two.glb");
+    std::fs::write(&path, glb()).unwrap();
+    let mesh = read_mesh(&path).unwrap();
+    assert_eq!(mesh.positions().len(), 6);
+    assert_eq!(mesh.positions()[1], Point3::new(11.0, 0.0, 0.0));
+    assert_eq!(mesh.positions()[5], Point3::new(0.0, 2.0, 0.0));
+    assert_eq!(mesh.triangles(), &[[0, 1, 2], [3, 4, 5]]);
+    let texture = mesh.texture().unwrap();
+    // v is flipped to point up.
+    assert_eq!(texture.uvs[2], Point2::new(0.0, 0.75));
+}
+
+#[test]
+fn bad_glb_is_refused_with_the_file_name() {
+    let path = scratch("broken.glb");
+    let mut bytes = glb();
+    // Claim an index accessor of 40 elements: it runs out of its view.
+    let needle = b"\"count\":3,\"type\":\"SCALAR\"";
+    let at = bytes.windows(needle.len()).position(|w| w == needle).unwrap();
+    bytes[at + 8] = b'9';
+    std::fs::write(&path, &bytes).unwrap();
+    let message = read_mesh(&path).unwrap_err().to_string();
+    assert!(message.starts_with(&path.display().to_string()), "{message}");
+    assert!(
+        message.contains("the index accessor lies outside its buffer"),
+        "{message}"
+    );
+    std::fs::write(&path, b"glTF garbage").unwrap();
+    assert!(read_mesh(&path).is_err());
+}
+
+#[test]
+fn files_round_trip_and_bad_paths_leave_nothing() {
+    let mesh = parse_obj(SQUARE_OBJ).unwrap();
+    for name in ["square.obj", "square.ply"] {
+        let path = scratch(name);
+        write_mesh(&path, &mesh).unwrap();
+        let back = read_mesh(&path).unwrap();
+        assert_eq!(back.positions(), mesh.positions());
+        assert_eq!(corner_uvs(&back), corner_uvs(&mesh));
+    }
+    let bad = scratch("square.stl");
+    let message = write_mesh(&bad, &mesh).unwrap_err().to_string();
+    assert!(
+        message.contains("square.stl") && message.contains("unknown mesh format"),
+        "{message}"
+    );
+    assert!(!bad.exists());
+    let missing = scratch("no-such-dir/square.obj");
+    assert!(write_mesh(&missing, &mesh).is_err());
+    assert!(!missing.exists());
+    let message = read_mesh(&scratch("absent.ply")).unwrap_err().to_string();
+    assert!(message.contains("absent.ply"), "{message}");
+}
+
+#[test]
+#[ignore = "needs ../shared/data/ict-face (not part of the repository)"]
+fn the_ict_scan_reads_like_tobj_reads_it() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/ict-face/neutral_face.obj");
+    let mesh = read_mesh(&path).unwrap();
+    assert_eq!(mesh.positions().len(), 9409);
+    assert_eq!(mesh.triangles().len(), 18460);
+    assert!(mesh.texture().is_some());
+    // tobj renumbers vertices, so compare triangles as coordinate triples.
+    let (models, _) = tobj::load_obj(&path, &tobj::GPU_LOAD_OPTIONS).unwrap();
+    let key = |p: [f64; 3]| p.map(f64::to_bits);
+    let mut ours: Vec<_> = (0..mesh.triangles().len())
+        .map(|k| mesh.triangle(k).map(|p| key([p.x, p.y, p.z])))
+        .collect();
+    let mut theirs = Vec::new();
+    for model in &models {
+        let m = &model.mesh;
+        for t in m.indices.chunks_exact(3) {
+            theirs.push([0, 1, 2].map(|c| {
+                let i = 3 * t[c] as usize;
+                // tobj reads f32; ours are f64 of the same decimal text.
+                key([0, 1, 2].map(|a| f64::from(m.positions[i + a])))
+            }));
+        }
+    }
+    // Compare at f32 precision.
+    let round = |v: &mut Vec<[[u64; 3]; 3]>| {
+        for t in v.iter_mut() {
+            for p in t.iter_mut() {
+                *p = p.map(|b| f64::from(f64::from_bits(b) as f32).to_bits());
+            }
+        }
+        v.sort_unstable();
+    };
+    round(&mut ours);
+    round(&mut theirs);
+    assert_eq!(ours, theirs);
+}
