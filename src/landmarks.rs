@@ -1,11 +1,12 @@
-//! Landmark files: iBUG `.pts` (2D points) and vertex-index lists (which vertices of a scan are
-//! the landmarks, one index a line, `#` comments, as in `landmarks68.txt`).
+//! Landmark files: iBUG `.pts` (2D points), a JSON form (2D or 3D, 68 iBUG points or the 40 of
+//! the structure, see [`parse_landmarks_json`]) and vertex-index lists (which vertices of a
+//! scan are the landmarks, one index a line, `#` comments, as in `landmarks68.txt`).
 //!
 //! Every reader names the file and the line of the first problem it meets, and never panics.
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::Point2;
+use nalgebra::{Point, Point2, Point3};
 
 use crate::Real;
 
@@ -59,6 +60,30 @@ pub enum LandmarkProblem {
         got: usize,
         /// Points required.
         expected: usize,
+    },
+    /// The points have another dimension than required.
+    #[error("the points are {got}D, expected {expected}D")]
+    Dimension {
+        /// Dimension found.
+        got: usize,
+        /// Dimension required.
+        expected: usize,
+    },
+    /// Points of different dimensions in one file.
+    #[error("point {point} has {got} coordinates, the first has {expected}")]
+    MixedDimensions {
+        /// 0-based point number.
+        point: usize,
+        /// Its coordinate count.
+        got: usize,
+        /// The first point's.
+        expected: usize,
+    },
+    /// A point has a NaN or infinite coordinate.
+    #[error("point {point} is not finite")]
+    NonFinitePoint {
+        /// 0-based point number.
+        point: usize,
     },
     /// A vertex index is not below the mesh's vertex count.
     #[error("line {line}: vertex index {index} is out of range (the mesh has {vertices} vertices)")]
@@ -250,4 +275,204 @@ pub fn parse_vertex_indices(
         });
     }
     Ok(indices)
+}
+
+/// Which points a landmark set holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Scheme {
+    /// The 68-point iBUG / 300-W annotation, 0-based, in its usual order.
+    Ibug68,
+    /// The 40-point structure of [`crate::structure::POINTS`], in that order.
+    Structure40,
+}
+
+impl Scheme {
+    /// The number of points of the scheme.
+    pub fn point_count(self) -> usize {
+        match self {
+            Self::Ibug68 => crate::structure::IBUG_POINT_COUNT,
+            Self::Structure40 => crate::structure::POINT_COUNT,
+        }
+    }
+}
+
+/// The points of a landmark set: all 2D (image pixels, `y` down) or all 3D.
+#[derive(Debug, Clone, PartialEq)]
+pub enum LandmarkPoints {
+    /// Image points.
+    Planar(Vec<Point2<Real>>),
+    /// Points in space.
+    Spatial(Vec<Point3<Real>>),
+}
+
+/// A landmark set read from or written to the JSON form (see [`parse_landmarks_json`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Landmarks {
+    /// The point scheme.
+    pub scheme: Scheme,
+    /// The points, as many as the scheme has.
+    pub points: LandmarkPoints,
+}
+
+/// The JSON tag of a landmark file.
+const LANDMARKS_FORMAT: &str = "splineface/landmarks";
+
+#[derive(serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLandmarks {
+    format: String,
+    version: u32,
+    scheme: Scheme,
+    points: Vec<Vec<Real>>,
+}
+
+impl Landmarks {
+    /// The 40-point structure in 3D: the points themselves for [`Scheme::Structure40`],
+    /// derived by [`crate::structure::from_ibug68`] for [`Scheme::Ibug68`].
+    ///
+    /// # Errors
+    /// [`LandmarkProblem::Dimension`] if the points are 2D, [`LandmarkProblem::WrongCount`] if
+    /// their number is not the scheme's.
+    pub fn structure_3d(&self) -> Result<Vec<Point3<Real>>, LandmarkProblem> {
+        match (&self.points, self.scheme) {
+            (LandmarkPoints::Spatial(points), scheme) => structure(points, scheme),
+            (LandmarkPoints::Planar(_), _) => Err(LandmarkProblem::Dimension { got: 2, expected: 3 }),
+        }
+    }
+
+    /// The 40-point structure in 2D (see [`Landmarks::structure_3d`]).
+    ///
+    /// # Errors
+    /// [`LandmarkProblem::Dimension`] if the points are 3D, [`LandmarkProblem::WrongCount`] if
+    /// their number is not the scheme's.
+    pub fn structure_2d(&self) -> Result<Vec<Point2<Real>>, LandmarkProblem> {
+        match (&self.points, self.scheme) {
+            (LandmarkPoints::Planar(points), scheme) => structure(points, scheme),
+            (LandmarkPoints::Spatial(_), _) => Err(LandmarkProblem::Dimension { got: 3, expected: 2 }),
+        }
+    }
+}
+
+/// The 40-point structure of points in `scheme`.
+fn structure<const D: usize>(
+    points: &[Point<Real, D>],
+    scheme: Scheme,
+) -> Result<Vec<Point<Real, D>>, LandmarkProblem> {
+    if points.len() != scheme.point_count() {
+        return Err(LandmarkProblem::WrongCount {
+            got: points.len(),
+            expected: scheme.point_count(),
+        });
+    }
+    if let Some(point) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(LandmarkProblem::NonFinitePoint { point });
+    }
+    Ok(match scheme {
+        Scheme::Structure40 => points.to_vec(),
+        Scheme::Ibug68 => crate::structure::from_ibug68(points).expect("count and values were checked"),
+    })
+}
+
+/// Reads a JSON landmark file (the form is on [`parse_landmarks_json`]).
+///
+/// # Errors
+/// A [`LandmarkError`] naming the file and the problem.
+pub fn read_landmarks_json(path: &Path) -> Result<Landmarks, LandmarkError> {
+    let text = std::fs::read_to_string(path).map_err(|e| error(path, e.into()))?;
+    parse_landmarks_json(&text).map_err(|p| error(path, p))
+}
+
+/// Parses the JSON landmark form:
+///
+/// ```json
+/// {
+///   "format": "splineface/landmarks",
+///   "version": 1,
+///   "scheme": "ibug68",
+///   "points": [[x, y], …]
+/// }
+/// ```
+///
+/// `scheme` is `"ibug68"` (68 points, iBUG order) or `"structure40"` (the 40 points of
+/// [`crate::structure::POINTS`], in order). `points` holds exactly that many points, all `[x, y]`
+/// (image pixels, `y` down) or all `[x, y, z]`. Unknown fields are refused.
+///
+/// # Errors
+/// The first problem: malformed JSON (with its line), another format or version, a wrong point
+/// count, mixed or unsupported dimensions.
+pub fn parse_landmarks_json(text: &str) -> Result<Landmarks, LandmarkProblem> {
+    let raw: RawLandmarks = serde_json::from_str(text).map_err(|e| syntax(e.line(), e.to_string()))?;
+    if raw.format != LANDMARKS_FORMAT {
+        return Err(syntax(
+            1,
+            format!("format is {:?}, expected {LANDMARKS_FORMAT:?}", raw.format),
+        ));
+    }
+    if raw.version != 1 {
+        return Err(syntax(
+            1,
+            format!(
+                "version {} is not supported (this build reads version 1)",
+                raw.version
+            ),
+        ));
+    }
+    let expected = raw.scheme.point_count();
+    if raw.points.len() != expected {
+        return Err(LandmarkProblem::WrongCount {
+            got: raw.points.len(),
+            expected,
+        });
+    }
+    let dimension = raw.points[0].len();
+    if let Some(k) = raw.points.iter().position(|p| p.len() != dimension) {
+        return Err(LandmarkProblem::MixedDimensions {
+            point: k,
+            got: raw.points[k].len(),
+            expected: dimension,
+        });
+    }
+    if let Some(k) = raw.points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(LandmarkProblem::NonFinitePoint { point: k });
+    }
+    let points = match dimension {
+        2 => LandmarkPoints::Planar(raw.points.iter().map(|p| Point2::new(p[0], p[1])).collect()),
+        3 => LandmarkPoints::Spatial(raw.points.iter().map(|p| Point3::new(p[0], p[1], p[2])).collect()),
+        got => return Err(LandmarkProblem::Dimension { got, expected: 3 }),
+    };
+    Ok(Landmarks {
+        scheme: raw.scheme,
+        points,
+    })
+}
+
+/// Writes a landmark set in the JSON form [`parse_landmarks_json`] reads; the round trip is
+/// exact.
+///
+/// # Errors
+/// [`LandmarkProblem::WrongCount`] if the number of points is not the scheme's, and
+/// [`LandmarkProblem::NonFinitePoint`] for a NaN or infinite coordinate (JSON cannot hold it).
+pub fn format_landmarks_json(landmarks: &Landmarks) -> Result<String, LandmarkProblem> {
+    let points: Vec<Vec<Real>> = match &landmarks.points {
+        LandmarkPoints::Planar(points) => points.iter().map(|p| vec![p.x, p.y]).collect(),
+        LandmarkPoints::Spatial(points) => points.iter().map(|p| vec![p.x, p.y, p.z]).collect(),
+    };
+    let expected = landmarks.scheme.point_count();
+    if points.len() != expected {
+        return Err(LandmarkProblem::WrongCount {
+            got: points.len(),
+            expected,
+        });
+    }
+    if let Some(k) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(LandmarkProblem::NonFinitePoint { point: k });
+    }
+    let raw = RawLandmarks {
+        format: LANDMARKS_FORMAT.to_owned(),
+        version: 1,
+        scheme: landmarks.scheme,
+        points,
+    };
+    Ok(serde_json::to_string_pretty(&raw).expect("finite numbers always serialise"))
 }

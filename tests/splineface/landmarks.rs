@@ -1,12 +1,16 @@
-//! Landmark files: `.pts` and vertex-index lists.
+//! Landmark files: `.pts`, the JSON form and vertex-index lists.
 
 use std::path::Path;
 
-use nalgebra::Point2;
+use nalgebra::{Point2, Point3};
 use proptest::prelude::*;
 use splineface::landmarks::{
-    LandmarkProblem, format_pts, parse_pts, parse_vertex_indices, read_pts, read_vertex_indices,
+    LandmarkPoints, LandmarkProblem, Landmarks, Scheme, format_landmarks_json, format_pts,
+    parse_landmarks_json, parse_pts, parse_vertex_indices, read_landmarks_json, read_pts,
+    read_vertex_indices,
 };
+
+use crate::common;
 
 proptest! {
     #[test]
@@ -127,5 +131,121 @@ fn the_ict_landmark_indices_read() {
     assert!(
         read_vertex_indices(&path, 68, 1000).is_err(),
         "indices above 1000 exist"
+    );
+}
+
+fn json_with(points: &str, scheme: &str) -> String {
+    format!(r#"{{"format": "splineface/landmarks", "version": 1, "scheme": "{scheme}", "points": {points}}}"#)
+}
+
+fn points_json(n: usize, dimension: usize) -> String {
+    let point = |k: usize| {
+        let c: Vec<String> = (0..dimension).map(|a| format!("{}.5", k * 3 + a)).collect();
+        format!("[{}]", c.join(", "))
+    };
+    format!("[{}]", (0..n).map(point).collect::<Vec<_>>().join(", "))
+}
+
+#[test]
+fn json_landmarks_read_both_schemes_and_dimensions() {
+    let planar = parse_landmarks_json(&json_with(&points_json(68, 2), "ibug68")).unwrap();
+    assert_eq!(planar.scheme, Scheme::Ibug68);
+    let structure = planar.structure_2d().unwrap();
+    assert_eq!(structure.len(), 40);
+    // The right eye centre is the mean of iBUG 36..=41: x = 3k + 0.5 averaged over k = 36..=41.
+    assert_eq!(structure[23], Point2::new(3.0 * 38.5 + 0.5, 3.0 * 38.5 + 1.5));
+    assert!(matches!(
+        planar.structure_3d(),
+        Err(LandmarkProblem::Dimension { got: 2, expected: 3 })
+    ));
+    let spatial = parse_landmarks_json(&json_with(&points_json(40, 3), "structure40")).unwrap();
+    let points = spatial.structure_3d().unwrap();
+    assert_eq!(points[39], Point3::new(117.5, 118.5, 119.5));
+}
+
+#[test]
+fn json_landmarks_round_trip_exactly() {
+    let mut rng = common::Lcg(5);
+    let points: Vec<Point3<f64>> = (0..68)
+        .map(|_| Point3::new(rng.uniform(-1e3, 1e3), rng.next() * 1e-7, rng.uniform(-3.0, 3.0)))
+        .collect();
+    let landmarks = Landmarks {
+        scheme: Scheme::Ibug68,
+        points: LandmarkPoints::Spatial(points),
+    };
+    let text = format_landmarks_json(&landmarks).unwrap();
+    assert_eq!(parse_landmarks_json(&text).unwrap(), landmarks);
+}
+
+#[test]
+fn json_landmarks_reject_malformed_input() {
+    let cases = [
+        (json_with(&points_json(67, 2), "ibug68"), "67 points, expected 68"),
+        (
+            json_with(&points_json(68, 2), "structure40"),
+            "68 points, expected 40",
+        ),
+        (json_with(&points_json(40, 4), "structure40"), "the points are 4D"),
+        (
+            json_with("[[1, 2], [1, 2, 3]]", "structure40"),
+            "2 points, expected 40",
+        ),
+        (
+            json_with(&points_json(40, 2), "mediapipe"),
+            "unknown variant `mediapipe`",
+        ),
+        (
+            json_with(&points_json(40, 2), "structure40").replace("\"version\": 1", "\"version\": 2"),
+            "version 2",
+        ),
+        (
+            json_with(&points_json(40, 2), "structure40").replace("splineface/landmarks", "x"),
+            "format is \"x\"",
+        ),
+        (
+            json_with(&points_json(40, 2), "structure40").replace("\"version\"", "\"extra\": 0, \"version\""),
+            "unknown field `extra`",
+        ),
+        (json_with("[[1, 1e999]]", "structure40"), "line 1"),
+        ("{".to_owned(), "line 1"),
+    ];
+    for (text, expected) in cases {
+        let message = parse_landmarks_json(&text).unwrap_err().to_string();
+        assert!(
+            message.contains(expected),
+            "{text}: got {message:?}, expected {expected:?}"
+        );
+    }
+    let mut mixed: Vec<String> = (0..40).map(|k| format!("[{k}, 1]")).collect();
+    mixed[7] = "[7, 1, 2]".into();
+    let message = parse_landmarks_json(&json_with(&format!("[{}]", mixed.join(",")), "structure40"))
+        .unwrap_err()
+        .to_string();
+    assert_eq!(message, "point 7 has 3 coordinates, the first has 2");
+    // Written landmarks must hold finite points.
+    let mut points = vec![Point2::new(0.0, 0.0); 40];
+    points[3].y = f64::NAN;
+    let bad = Landmarks {
+        scheme: Scheme::Structure40,
+        points: LandmarkPoints::Planar(points),
+    };
+    assert!(matches!(
+        format_landmarks_json(&bad),
+        Err(LandmarkProblem::NonFinitePoint { point: 3 })
+    ));
+    assert!(matches!(
+        bad.structure_2d(),
+        Err(LandmarkProblem::NonFinitePoint { point: 3 })
+    ));
+}
+
+#[test]
+fn json_landmark_file_errors_name_the_file() {
+    let path = std::env::temp_dir().join(format!("splineface-landmarks-{}.json", std::process::id()));
+    std::fs::write(&path, json_with(&points_json(3, 2), "ibug68")).unwrap();
+    let message = read_landmarks_json(&path).unwrap_err().to_string();
+    assert!(
+        message.starts_with(&path.display().to_string()) && message.ends_with("3 points, expected 68"),
+        "{message}"
     );
 }
