@@ -12,8 +12,16 @@
 //!   basis matrix, affine maps, JSON) and [`bspline::SurfaceFit`] (least-squares control grids
 //!   from up to millions of scattered samples).
 //!
-//! * [`structure`]: the paper's 40-point face structure (points, groups, mirror partners) and
-//!   its derivation from the 68-point iBUG annotation.
+//! * [`structure`]: the paper's 40-point face structure (points, groups, mirror partners), its
+//!   derivation from the 68-point iBUG annotation, the canonical frame, edges, sub-structures
+//!   and the multi-substructure SSIM.
+//!
+//! * [`reference`](mod@reference): the reference face (control grid, structure, edges, clip region) fitted to
+//!   scans, and the embedded default, [`reference::ReferenceFace::embedded`].
+//!
+//! * [`mesh`]: triangle meshes and their files (OBJ, PLY, glTF/GLB in; OBJ, PLY out) and the
+//!   frontal rasteriser; [`landmarks`]: landmark files (`.pts`, JSON, vertex indices);
+//!   [`io`]: all-or-nothing file writing.
 //!
 //! The other face front ends (photo alignment, depth estimation) feed the kernel a transform;
 //! they are built on top of it.
@@ -35,6 +43,7 @@ pub mod bspline;
 pub mod io;
 pub mod landmarks;
 pub mod mesh;
+pub mod reference;
 pub mod structure;
 
 /// The scalar type of all geometry.

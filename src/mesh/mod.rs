@@ -23,9 +23,11 @@ use crate::Real;
 mod gltf;
 mod obj;
 mod ply;
+mod raster;
 
 pub use obj::{format_obj, parse_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};
+pub use raster::{Raster, front_heights};
 
 /// Texture coordinates of a mesh (`v` up, as in OBJ and PLY; glTF's are flipped on reading):
 /// a `uv` array and, for each triangle of the mesh, the indices

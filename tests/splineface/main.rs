@@ -11,4 +11,5 @@ mod bspline_surface;
 mod common;
 mod landmarks;
 mod mesh;
+mod reference;
 mod structure;

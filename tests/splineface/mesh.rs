@@ -417,3 +417,47 @@ fn the_ict_scan_reads_like_tobj_reads_it() {
     round(&mut theirs);
     assert_eq!(ours, theirs);
 }
+
+/// Two overlapping planes: the front one wins; a tilted plane is interpolated exactly; samples
+/// off the mesh are NaN.
+#[test]
+fn front_heights_keep_the_front_most_surface() {
+    use splineface::mesh::{Raster, front_heights};
+    let square = |z: [f64; 4], offset: u32| {
+        (
+            vec![
+                Point3::new(0.0, 0.0, z[0]),
+                Point3::new(4.0, 0.0, z[1]),
+                Point3::new(4.0, 4.0, z[2]),
+                Point3::new(0.0, 4.0, z[3]),
+            ],
+            vec![[offset, offset + 1, offset + 2], [offset, offset + 2, offset + 3]],
+        )
+    };
+    // Back: the tilted plane z = 0.5x + 0.25y − 9; front: z = 0.5x + 0.25y (both planar).
+    let plane = |x: f64, y: f64| 0.5 * x + 0.25 * y;
+    let corners = [(0.0, 0.0), (4.0, 0.0), (4.0, 4.0), (0.0, 4.0)];
+    let (mut positions, mut triangles) = square(corners.map(|(x, y)| plane(x, y) - 9.0), 0);
+    let (p2, t2) = square(corners.map(|(x, y)| plane(x, y)), 4);
+    positions.extend(p2);
+    triangles.extend(t2);
+    let mesh = TriangleMesh::new(positions, triangles).unwrap();
+    let raster = Raster {
+        origin: Point2::new(-1.0, -1.0),
+        spacing: 0.5,
+        width: 13,
+        height: 13,
+    };
+    let heights = front_heights(&mesh, &raster);
+    for j in 0..raster.height {
+        for i in 0..raster.width {
+            let p = raster.position(i, j);
+            let h = heights[j * raster.width + i];
+            if (0.0..=4.0).contains(&p.x) && (0.0..=4.0).contains(&p.y) {
+                assert!((h - plane(p.x, p.y)).abs() < 1e-12, "at {p}: {h}");
+            } else {
+                assert!(h.is_nan(), "at {p}: {h}");
+            }
+        }
+    }
+}

@@ -1,0 +1,621 @@
+//! The reference face: a cubic control grid fitted once to reference scans, with the reference
+//! 40-point structure, its edges and the face-region clip boundary. The surface stage deforms
+//! it by the transform from this structure to an estimated one.
+//!
+//! # How a reference is built ([`build_reference`])
+//!
+//! 1. Each scan is unified into the canonical frame by its 40-point structure (eye centres at
+//!    `(±25, 0, 0)`, `+z` toward the viewer); the reference structure is the mean of the
+//!    unified structures.
+//! 2. The face region is the polygon of the structure's contour (9 points, ear to ear under
+//!    the chin) closed over its brows lifted by `brow_lift` units, grown by `margin` about its
+//!    centroid. Its bounding box is the parameter domain: `u = (x − x₀)/(x₁ − x₀)`,
+//!    `v = (y − y₀)/(y₁ − y₀)` (the frontal parametrisation of the paper).
+//! 3. Every scan's front-most surface is rasterised over the box at `sample_spacing`
+//!    ([`crate::mesh::front_heights`]); the samples are the mean heights where every scan has
+//!    surface. Only the front-most surface is fitted: a scan's hidden parts (interior shells,
+//!    the inside of the mouth, the back of the head) and the undersides of overhangs have no
+//!    place on a frontal height field, and fitting them folds the surface.
+//! 4. A clamped uniform cubic grid is fitted to the samples by [`SurfaceFit`] with a small
+//!    thin-plate term, so that parts of the box without samples stay defined.
+//!
+//! The residuals are reported for all samples and for those inside the face region, in
+//! canonical units (50 between the eye centres).
+//!
+//! # The file ([`ReferenceFace::to_json`])
+//!
+//! ```json
+//! {
+//!   "format": "splineface/reference",
+//!   "version": 1,
+//!   "surface": { …a splineface/bspline-surface… },
+//!   "structure": [[x, y, z], …40],
+//!   "edges": [[i, j], …],
+//!   "frame": { "x": [x0, x1], "y": [y0, y1] },
+//!   "clip": [[u, v], …],
+//!   "fit": { …ReferenceFit… },
+//!   "provenance": { "program": "…", "sources": [ … ], "note": "…" }
+//! }
+//! ```
+//!
+//! Numbers are written in their shortest exact form, so the round trip is exact; reading
+//! validates everything (40 finite points, edges in range, a clip polygon inside the domain).
+
+use std::sync::OnceLock;
+
+use nalgebra::{Point2, Point3};
+use serde::{Deserialize, Serialize};
+
+use crate::Real;
+use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit};
+use crate::mesh::{Raster, TriangleMesh, front_heights};
+use crate::structure::{self, POINT_COUNT, StructureError, delaunay_edges, unify};
+
+/// How a reference is fitted.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceOptions {
+    /// Control points along each side of the cubic grid.
+    pub grid: usize,
+    /// The thin-plate weight λ of [`SurfaceFit::smoothness`].
+    pub smoothness: Real,
+    /// The distance between frontal samples, in canonical units.
+    pub sample_spacing: Real,
+    /// How far above the brows the face region reaches, in canonical units.
+    pub brow_lift: Real,
+    /// The factor by which the clip region is grown about its centroid, beyond the fitted
+    /// region.
+    pub margin: Real,
+    /// The factor by which the fitted region is grown: samples outside it are left out of the
+    /// fit (beyond the jaw line a frontal view looks down a cliff onto the neck, and beside the
+    /// cheeks onto the ears; a smooth surface cannot follow a cliff, and trying rings over the
+    /// whole face).
+    pub fit_margin: Real,
+}
+
+impl Default for ReferenceOptions {
+    /// The options the project's default reference was built with; the grid size and λ were
+    /// chosen by measurement (see `reference/README.md`).
+    fn default() -> Self {
+        Self {
+            grid: 32,
+            smoothness: 1e-10,
+            sample_spacing: 0.5,
+            brow_lift: 20.0,
+            margin: 1.05,
+            fit_margin: 1.0,
+        }
+    }
+}
+
+/// Where one scan of a reference came from.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceSource {
+    /// The scan's file name.
+    pub mesh: String,
+    /// The FNV-1a 64-bit hash of the scan file's bytes, in hex: which version of it was used.
+    pub mesh_fnv1a64: String,
+    /// The landmark file's name.
+    pub landmarks: String,
+    /// The scan's vertex count.
+    pub vertices: usize,
+    /// The scan's triangle count.
+    pub triangles: usize,
+}
+
+/// How a reference was made.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The program and version that built it.
+    pub program: String,
+    /// The scans, in input order.
+    pub sources: Vec<ReferenceSource>,
+    /// Free text: licence, origin.
+    pub note: String,
+}
+
+/// The fit of a reference: its options and residuals, the distances between the samples and
+/// the surface at their parameters, in canonical units. (At a steep wall, such as the underside
+/// of the nose seen from the front, this parametric distance is much larger than the distance
+/// to the nearest surface point.)
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReferenceFit {
+    /// The options used.
+    pub options: ReferenceOptions,
+    /// Frontal samples fitted.
+    pub samples: usize,
+    /// RMS distance.
+    pub rms: Real,
+    /// The largest distance.
+    pub max: Real,
+    /// Where the largest distance occurs (the sample, canonical frame).
+    pub max_at: Point3<Real>,
+    /// The median distance.
+    pub median: Real,
+    /// The 95th percentile of the distances.
+    pub p95: Real,
+}
+
+/// The frontal box the parameters span: `u = (x − x[0])/(x[1] − x[0])`, likewise `v` from `y`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrontalFrame {
+    /// `x` at `u = 0` and `u = 1`.
+    pub x: [Real; 2],
+    /// `y` at `v = 0` and `v = 1`.
+    pub y: [Real; 2],
+}
+
+impl FrontalFrame {
+    /// The parameters of the frontal position `(x, y)`.
+    pub fn parameters(&self, x: Real, y: Real) -> Point2<Real> {
+        Point2::new(
+            (x - self.x[0]) / (self.x[1] - self.x[0]),
+            (y - self.y[0]) / (self.y[1] - self.y[0]),
+        )
+    }
+
+    /// The frontal position of the parameters `(u, v)`.
+    pub fn position(&self, u: Real, v: Real) -> Point2<Real> {
+        Point2::new(
+            self.x[0] + u * (self.x[1] - self.x[0]),
+            self.y[0] + v * (self.y[1] - self.y[0]),
+        )
+    }
+}
+
+/// A reference face (see the module documentation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "RawReference", into = "RawReference")]
+pub struct ReferenceFace {
+    surface: BSplineSurface,
+    structure: Vec<Point3<Real>>,
+    edges: Vec<[usize; 2]>,
+    frame: FrontalFrame,
+    clip: Vec<Point2<Real>>,
+    fit: ReferenceFit,
+    provenance: Provenance,
+}
+
+/// What went wrong building or reading a reference.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReferenceError {
+    /// No scan was given.
+    #[error("no scan to build the reference from")]
+    NoScans,
+    /// An option is out of its range.
+    #[error("option {name} = {value} is out of range: {expected}")]
+    Option {
+        /// The option.
+        name: &'static str,
+        /// Its value.
+        value: String,
+        /// The range.
+        expected: &'static str,
+    },
+    /// A scan's structure cannot be unified.
+    #[error("scan {scan}: {source}")]
+    Structure {
+        /// 0-based scan number.
+        scan: usize,
+        /// Why.
+        source: StructureError,
+    },
+    /// The scans leave the face region (almost) empty.
+    #[error(
+        "only {samples} frontal samples where every scan has surface: do the landmarks belong to the scans?"
+    )]
+    TooFewSamples {
+        /// Samples found.
+        samples: usize,
+    },
+    /// The fit failed.
+    #[error("fitting the control grid: {0}")]
+    Fit(#[from] BSplineError),
+}
+
+/// One scan handed to [`build_reference`].
+#[derive(Debug, Clone)]
+pub struct ReferenceScan {
+    /// The scan, in its own frame.
+    pub mesh: TriangleMesh,
+    /// Its 40-point structure, in the same frame.
+    pub structure: Vec<Point3<Real>>,
+    /// Where it came from.
+    pub source: ReferenceSource,
+}
+
+/// The FNV-1a 64-bit hash of `bytes` as 16 hex digits (for [`ReferenceSource::mesh_fnv1a64`]).
+pub fn fnv1a64(bytes: &[u8]) -> String {
+    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    });
+    format!("{hash:016x}")
+}
+
+fn check_option(
+    name: &'static str,
+    value: Real,
+    ok: bool,
+    expected: &'static str,
+) -> Result<(), ReferenceError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(ReferenceError::Option {
+            name,
+            value: value.to_string(),
+            expected,
+        })
+    }
+}
+
+/// The largest raster [`build_reference`] accepts, in samples.
+pub const MAX_SAMPLES: usize = 20_000_000;
+
+/// The face-region polygon (frontal `x`, `y`) of a canonical structure: the contour closed
+/// over the brows lifted by `brow_lift`, grown by `margin` about its vertex centroid.
+pub fn face_region(structure: &[Point3<Real>], brow_lift: Real, margin: Real) -> Vec<Point2<Real>> {
+    use structure::Group;
+    let group = |g: Group| (0..POINT_COUNT).filter(move |&k| structure::POINTS[k].group == g);
+    let mut polygon: Vec<Point2<Real>> = group(Group::Contour)
+        .map(|k| Point2::new(structure[k].x, structure[k].y))
+        .collect();
+    let brows: Vec<usize> = group(Group::Brows).collect();
+    polygon.extend(
+        brows
+            .iter()
+            .rev()
+            .map(|&k| Point2::new(structure[k].x, structure[k].y + brow_lift)),
+    );
+    let centroid = polygon.iter().map(|p| p.coords).sum::<nalgebra::Vector2<Real>>() / polygon.len() as Real;
+    polygon
+        .iter()
+        .map(|p| Point2::from(centroid + margin * (p.coords - centroid)))
+        .collect()
+}
+
+/// Whether `p` lies inside `polygon` (even-odd rule; points on the boundary may go either way).
+pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
+    let mut inside = false;
+    for k in 0..polygon.len() {
+        let (a, b) = (polygon[k], polygon[(k + 1) % polygon.len()]);
+        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+            inside = !inside;
+        }
+    }
+    inside
+}
+
+/// Builds a reference face from one or more scans (see the module documentation).
+///
+/// # Errors
+/// [`ReferenceError::NoScans`], [`ReferenceError::Option`] for an option out of range,
+/// [`ReferenceError::Structure`] when a scan's structure cannot be unified,
+/// [`ReferenceError::TooFewSamples`] when the scans do not cover the face region,
+/// [`ReferenceError::Fit`] when the fit fails.
+pub fn build_reference(
+    scans: &[ReferenceScan],
+    options: &ReferenceOptions,
+    note: &str,
+) -> Result<ReferenceFace, ReferenceError> {
+    if scans.is_empty() {
+        return Err(ReferenceError::NoScans);
+    }
+    if !(4..=256).contains(&options.grid) {
+        return Err(ReferenceError::Option {
+            name: "grid",
+            value: options.grid.to_string(),
+            expected: "4 to 256 control points a side",
+        });
+    }
+    check_option("smoothness", options.smoothness, options.smoothness >= 0.0, "≥ 0")?;
+    check_option(
+        "sample spacing",
+        options.sample_spacing,
+        options.sample_spacing > 0.0,
+        "> 0 canonical units",
+    )?;
+    check_option(
+        "brow lift",
+        options.brow_lift,
+        options.brow_lift >= 0.0,
+        "≥ 0 canonical units",
+    )?;
+    check_option(
+        "margin",
+        options.margin,
+        (1.0..=3.0).contains(&options.margin),
+        "1 to 3",
+    )?;
+    check_option(
+        "fit margin",
+        options.fit_margin,
+        (0.5..=options.margin).contains(&options.fit_margin),
+        "0.5 to the clip margin",
+    )?;
+
+    // 1. Unify every scan; the reference structure is the mean.
+    let mut meshes = Vec::with_capacity(scans.len());
+    let mut mean = vec![Point3::origin(); POINT_COUNT];
+    for (k, scan) in scans.iter().enumerate() {
+        let (similarity, canonical) =
+            unify(&scan.structure).map_err(|source| ReferenceError::Structure { scan: k, source })?;
+        meshes.push(scan.mesh.transformed(&nalgebra::convert(similarity)));
+        for (m, p) in mean.iter_mut().zip(&canonical) {
+            m.coords += p.coords / scans.len() as Real;
+        }
+    }
+
+    // 2. The face region and the frontal box.
+    let region = face_region(&mean, options.brow_lift, options.margin);
+    let fitted_region = face_region(&mean, options.brow_lift, options.fit_margin);
+    let (mut lo, mut hi) = (region[0], region[0]);
+    for p in &region {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let frame = FrontalFrame {
+        x: [lo.x, hi.x],
+        y: [lo.y, hi.y],
+    };
+    let clip: Vec<Point2<Real>> = region.iter().map(|p| frame.parameters(p.x, p.y)).collect();
+
+    // 3. Mean front-most heights over the box.
+    let spacing = options.sample_spacing;
+    let width = ((hi.x - lo.x) / spacing).floor() + 1.0;
+    let height = ((hi.y - lo.y) / spacing).floor() + 1.0;
+    if width * height > MAX_SAMPLES as Real {
+        return Err(ReferenceError::Option {
+            name: "sample spacing",
+            value: spacing.to_string(),
+            expected: "coarse enough for at most 20 million samples over the face box",
+        });
+    }
+    let raster = Raster {
+        origin: lo,
+        spacing,
+        width: width as usize,
+        height: height as usize,
+    };
+    let mut sums = vec![0.0; raster.width * raster.height];
+    for mesh in &meshes {
+        for (sum, h) in sums.iter_mut().zip(front_heights(mesh, &raster)) {
+            // NaN (no surface in one scan) poisons the sample, as intended.
+            *sum += h;
+        }
+    }
+    let mut params = Vec::new();
+    let mut points = Vec::new();
+    for j in 0..raster.height {
+        for i in 0..raster.width {
+            let z = sums[j * raster.width + i] / meshes.len() as Real;
+            if z.is_nan() {
+                continue;
+            }
+            let p = raster.position(i, j);
+            if !polygon_contains(&fitted_region, p) {
+                continue;
+            }
+            let uv = frame.parameters(p.x, p.y);
+            params.push([uv.x.clamp(0.0, 1.0), uv.y.clamp(0.0, 1.0)]);
+            points.push(Point3::new(p.x, p.y, z));
+        }
+    }
+    let needed = options.grid * options.grid;
+    if points.len() < needed {
+        return Err(ReferenceError::TooFewSamples {
+            samples: points.len(),
+        });
+    }
+
+    // 4. The fit.
+    let knots = KnotVector::clamped_uniform(3, options.grid, 0.0, 1.0)?;
+    let fitted = SurfaceFit::new(knots.clone(), knots)
+        .smoothness(options.smoothness)
+        .fit(&params, &points)?;
+    let surface = fitted.surface;
+    let mut distances: Vec<Real> = surface
+        .eval_many(&params)?
+        .iter()
+        .zip(&points)
+        .map(|(e, p)| (e - p).norm())
+        .collect();
+    distances.sort_unstable_by(Real::total_cmp);
+    let percentile = |q: Real| distances[((distances.len() - 1) as Real * q).round() as usize];
+    let fit = ReferenceFit {
+        options: *options,
+        samples: points.len(),
+        rms: fitted.report.rms,
+        max: fitted.report.max,
+        max_at: points[fitted.report.max_index],
+        median: percentile(0.5),
+        p95: percentile(0.95),
+    };
+    let frontal: Vec<Point2<Real>> = mean.iter().map(|p| p.xy()).collect();
+    let edges = delaunay_edges(&frontal).map_err(|source| ReferenceError::Structure { scan: 0, source })?;
+    Ok(ReferenceFace {
+        surface,
+        structure: mean,
+        edges,
+        frame,
+        clip,
+        fit,
+        provenance: Provenance {
+            program: format!("splineface {} fit-reference", env!("CARGO_PKG_VERSION")),
+            sources: scans.iter().map(|s| s.source.clone()).collect(),
+            note: note.to_owned(),
+        },
+    })
+}
+
+/// The project's default reference, fitted to the ICT-FaceKit mean face (see
+/// `reference/README.md` for how, and the source's MIT notice).
+const EMBEDDED: &str = include_str!("../reference/ict-mean-face.json");
+
+impl ReferenceFace {
+    /// The project's default reference, embedded in the library (parsed on first use).
+    pub fn embedded() -> &'static ReferenceFace {
+        static REFERENCE: OnceLock<ReferenceFace> = OnceLock::new();
+        REFERENCE.get_or_init(|| {
+            ReferenceFace::from_json(EMBEDDED).expect("the embedded reference is valid (a test checks it)")
+        })
+    }
+
+    /// The fitted surface, in the canonical frame, over `[0, 1]²`.
+    pub fn surface(&self) -> &BSplineSurface {
+        &self.surface
+    }
+
+    /// The reference 40-point structure `T₀`, in the canonical frame.
+    pub fn structure(&self) -> &[Point3<Real>] {
+        &self.structure
+    }
+
+    /// The structure's edges (Delaunay of its frontal positions), `i < j`.
+    pub fn edges(&self) -> &[[usize; 2]] {
+        &self.edges
+    }
+
+    /// The frontal box the parameters span.
+    pub fn frame(&self) -> &FrontalFrame {
+        &self.frame
+    }
+
+    /// The face-region clip polygon in `(u, v)`.
+    pub fn clip(&self) -> &[Point2<Real>] {
+        &self.clip
+    }
+
+    /// Whether `(u, v)` lies inside the face region.
+    pub fn in_face_region(&self, u: Real, v: Real) -> bool {
+        polygon_contains(&self.clip, Point2::new(u, v))
+    }
+
+    /// The fit's options and residuals.
+    pub fn fit(&self) -> &ReferenceFit {
+        &self.fit
+    }
+
+    /// How the reference was made.
+    pub fn provenance(&self) -> &Provenance {
+        &self.provenance
+    }
+
+    /// The reference in its JSON form (documented on the module), exact on reading back.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).expect("a validated reference always serialises")
+    }
+
+    /// Reads a reference written by [`ReferenceFace::to_json`], validating everything.
+    ///
+    /// # Errors
+    /// A `serde_json` error that says what is wrong.
+    pub fn from_json(json: &str) -> Result<Self, serde_json::Error> {
+        serde_json::from_str(json)
+    }
+}
+
+const FORMAT: &str = "splineface/reference";
+const VERSION: u32 = 1;
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawReference {
+    format: String,
+    version: u32,
+    surface: BSplineSurface,
+    structure: Vec<Point3<Real>>,
+    edges: Vec<[usize; 2]>,
+    frame: FrontalFrame,
+    clip: Vec<Point2<Real>>,
+    fit: ReferenceFit,
+    provenance: Provenance,
+}
+
+impl From<ReferenceFace> for RawReference {
+    fn from(r: ReferenceFace) -> Self {
+        Self {
+            format: FORMAT.to_owned(),
+            version: VERSION,
+            surface: r.surface,
+            structure: r.structure,
+            edges: r.edges,
+            frame: r.frame,
+            clip: r.clip,
+            fit: r.fit,
+            provenance: r.provenance,
+        }
+    }
+}
+
+impl TryFrom<RawReference> for ReferenceFace {
+    type Error = String;
+    fn try_from(raw: RawReference) -> Result<Self, String> {
+        if raw.format != FORMAT {
+            return Err(format!("format is {:?}, expected {FORMAT:?}", raw.format));
+        }
+        if raw.version != VERSION {
+            return Err(format!(
+                "format version {} is not supported (this build reads version {VERSION})",
+                raw.version
+            ));
+        }
+        if raw.structure.len() != POINT_COUNT {
+            return Err(format!(
+                "structure has {} points, expected {POINT_COUNT}",
+                raw.structure.len()
+            ));
+        }
+        if let Some(k) = raw
+            .structure
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(format!("structure point {k} is not finite"));
+        }
+        let mut seen = std::collections::HashSet::new();
+        for &[i, j] in &raw.edges {
+            if !(i < j && j < POINT_COUNT) {
+                return Err(format!("edge [{i}, {j}] is not a pair i < j < {POINT_COUNT}"));
+            }
+            if !seen.insert([i, j]) {
+                return Err(format!("edge [{i}, {j}] is repeated"));
+            }
+        }
+        let [x0, x1] = raw.frame.x;
+        let [y0, y1] = raw.frame.y;
+        if !(x0.is_finite() && x1.is_finite() && y0.is_finite() && y1.is_finite() && x0 < x1 && y0 < y1) {
+            return Err("frame is not a finite box with x0 < x1 and y0 < y1".to_owned());
+        }
+        if raw.surface.domain_u() != (0.0, 1.0) || raw.surface.domain_v() != (0.0, 1.0) {
+            return Err("the surface's domain is not [0, 1]²".to_owned());
+        }
+        if raw.clip.len() < 3 {
+            return Err(format!(
+                "clip polygon has {} points, at least 3 needed",
+                raw.clip.len()
+            ));
+        }
+        if let Some(k) = raw
+            .clip
+            .iter()
+            .position(|p| !(p.iter().all(|c| (0.0..=1.0).contains(c))))
+        {
+            return Err(format!("clip point {k} lies outside [0, 1]²"));
+        }
+        Ok(Self {
+            surface: raw.surface,
+            structure: raw.structure,
+            edges: raw.edges,
+            frame: raw.frame,
+            clip: raw.clip,
+            fit: raw.fit,
+            provenance: raw.provenance,
+        })
+    }
+}
