@@ -23,8 +23,11 @@
 //!   frontal rasteriser; [`landmarks`]: landmark files (`.pts`, JSON, vertex indices);
 //!   [`io`]: all-or-nothing file writing.
 //!
-//! The other face front ends (photo alignment, depth estimation) feed the kernel a transform;
-//! they are built on top of it.
+//! * [`align`]: the frontal 2D structure of a batch of photos ([`align::procrustes_frontal`]
+//!   from their points alone); [`depth`]: the 3D structure by the paper's pose/depth
+//!   alternation with the multi-substructure SSIM constraint ([`depth::estimate_depth`]).
+//!
+//! The face front ends feed the kernel a transform; they are built on top of it.
 //!
 //! ## Conventions
 //!
@@ -39,7 +42,9 @@
 #![forbid(unsafe_code)]
 #![warn(missing_docs)]
 
+pub mod align;
 pub mod bspline;
+pub mod depth;
 pub mod io;
 pub mod landmarks;
 pub mod mesh;

@@ -23,7 +23,10 @@ mod frame;
 mod similarity;
 
 pub use frame::{HALF_EYE_DISTANCE, unify, unify_2d};
-pub use similarity::{delaunay_edges, edge_lengths, multi_substructure_similarity, ssim, substructures};
+pub use similarity::{
+    delaunay_edges, edge_lengths, multi_substructure_similarity, multi_substructure_similarity_gradient,
+    ssim, substructures,
+};
 
 use nalgebra::{Point, Point3, SVector};
 

@@ -144,3 +144,80 @@ pub fn multi_substructure_similarity(reference: &[Real], lengths: &[Real], group
         })
         .product()
 }
+
+/// [`multi_substructure_similarity`] and its gradient with respect to the edge lengths:
+/// returns `SIM` and writes `∂SIM/∂lengths[e]` into `gradient[e]`.
+///
+/// For one sub-structure with reference lengths `x` and lengths `y` (`n` of them),
+/// `SSIM = A·B / (C·D)` with `A = 2μₓμᵧ + C₁`, `B = 2σₓᵧ + C₂`, `C = μₓ² + μᵧ² + C₁`,
+/// `D = σₓ² + σᵧ² + C₂`, and `∂A/∂yₑ = 2μₓ/n`, `∂B/∂yₑ = 2(xₑ − μₓ)/n`, `∂C/∂yₑ = 2μᵧ/n`,
+/// `∂D/∂yₑ = 2(yₑ − μᵧ)/n`. The product over sub-structures is differentiated with the
+/// products of the other factors (no division by a factor, which may be 0).
+///
+/// # Panics
+/// As [`multi_substructure_similarity`], and if `gradient` is not as long as `lengths`.
+pub fn multi_substructure_similarity_gradient(
+    reference: &[Real],
+    lengths: &[Real],
+    groups: &[Vec<usize>; 7],
+    gradient: &mut [Real],
+) -> Real {
+    assert_eq!(
+        reference.len(),
+        lengths.len(),
+        "edge length vectors differ in length"
+    );
+    assert_eq!(gradient.len(), lengths.len(), "gradient has the wrong length");
+    let range = reference.iter().copied().fold(0.0, Real::max);
+    let c1 = (0.01 * range).powi(2);
+    let c2 = (0.03 * range).powi(2);
+    // Per group: its factor h = (SSIM + 1)/2 and the derivative terms of SSIM, kept to be
+    // scaled by the product of the other factors.
+    let mut factors = [1.0; 7];
+    let mut parts = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0); 7];
+    for (k, g) in groups.iter().enumerate() {
+        if g.is_empty() {
+            continue;
+        }
+        let n = g.len() as Real;
+        let (mut mx, mut my) = (0.0, 0.0);
+        for &e in g {
+            mx += reference[e];
+            my += lengths[e];
+        }
+        let (mx, my) = (mx / n, my / n);
+        let (mut vx, mut vy, mut cxy) = (0.0, 0.0, 0.0);
+        for &e in g {
+            let (dx, dy) = (reference[e] - mx, lengths[e] - my);
+            vx += dx * dx;
+            vy += dy * dy;
+            cxy += dx * dy;
+        }
+        let (vx, vy, cxy) = (vx / n, vy / n, cxy / n);
+        let a = 2.0 * mx * my + c1;
+        let b = 2.0 * cxy + c2;
+        let c = mx * mx + my * my + c1;
+        let d = vx + vy + c2;
+        let s = a * b / (c * d);
+        factors[k] = (s + 1.0) / 2.0;
+        parts[k] = (a, b, c, d, s, mx, my, n);
+    }
+    let sim: Real = factors.iter().product();
+    gradient.iter_mut().for_each(|g| *g = 0.0);
+    for (k, g) in groups.iter().enumerate() {
+        if g.is_empty() {
+            continue;
+        }
+        let others: Real = (0..7).filter(|&m| m != k).map(|m| factors[m]).product();
+        let (a, b, c, d, s, mx, my, n) = parts[k];
+        for &e in g {
+            let da = 2.0 * mx / n;
+            let db = 2.0 * (reference[e] - mx) / n;
+            let dc = 2.0 * my / n;
+            let dd = 2.0 * (lengths[e] - my) / n;
+            let ds = (da * b + a * db) / (c * d) - s * (dc * d + c * dd) / (c * d);
+            gradient[e] += others * ds / 2.0;
+        }
+    }
+    sim
+}

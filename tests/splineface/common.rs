@@ -131,3 +131,12 @@ impl Lcg {
         a + (b - a) * self.next()
     }
 }
+
+impl Lcg {
+    /// Standard normal (Box–Muller).
+    pub fn gaussian(&mut self) -> Real {
+        let u = self.next().max(1e-300);
+        let v = self.next();
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
+    }
+}

@@ -3,12 +3,14 @@
 // Index loops mirror the formulas they check (Σᵢ Σⱼ …), which reads better than zips here.
 #![allow(clippy::needless_range_loop)]
 
+mod align;
 mod bspline_basis;
 mod bspline_fit;
 mod bspline_knots;
 mod bspline_serde;
 mod bspline_surface;
 mod common;
+mod depth;
 mod landmarks;
 mod mesh;
 mod reference;

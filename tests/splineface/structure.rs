@@ -294,3 +294,33 @@ mod frame_and_similarity {
         }
     }
 }
+
+#[test]
+fn the_similarity_gradient_matches_finite_differences() {
+    use splineface::structure::{
+        edge_lengths, multi_substructure_similarity, multi_substructure_similarity_gradient, substructures,
+    };
+    let reference = splineface::reference::ReferenceFace::embedded();
+    let edges = reference.edges();
+    let groups = substructures(edges);
+    let x = edge_lengths(reference.structure(), edges);
+    let mut rng = crate::common::Lcg(5);
+    let y: Vec<f64> = x.iter().map(|l| l * rng.uniform(0.7, 1.3)).collect();
+    let mut gradient = vec![0.0; y.len()];
+    let sim = multi_substructure_similarity_gradient(&x, &y, &groups, &mut gradient);
+    assert!((sim - multi_substructure_similarity(&x, &y, &groups)).abs() < 1e-15);
+    for e in 0..y.len() {
+        let h = 1e-6;
+        let (mut up, mut down) = (y.clone(), y.clone());
+        up[e] += h;
+        down[e] -= h;
+        let numeric = (multi_substructure_similarity(&x, &up, &groups)
+            - multi_substructure_similarity(&x, &down, &groups))
+            / (2.0 * h);
+        assert!(
+            (numeric - gradient[e]).abs() < 1e-8 * (1.0 + numeric.abs()),
+            "edge {e}: {numeric} vs {}",
+            gradient[e]
+        );
+    }
+}
