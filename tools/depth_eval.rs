@@ -129,7 +129,7 @@ fn main() -> anyhow::Result<()> {
                         .photos
                         .iter()
                         .zip(&poses)
-                        .map(|(fit, pose)| (fit.pose.rotation.inverse() * pose.rotation).angle().to_degrees())
+                        .map(|(fit, pose)| fit.pose.angle_to_degrees(pose))
                         .sum::<Real>()
                         / photos as Real;
                     iterations += estimate.iterations as Real;

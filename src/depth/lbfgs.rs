@@ -29,7 +29,7 @@ pub(crate) fn minimize(
     let mut direction = vec![0.0; n];
     let mut trial = vec![0.0; n];
     let mut trial_gradient = vec![0.0; n];
-    let mut alpha = vec![0.0; MEMORY];
+    let mut alpha = [0.0; MEMORY];
     for _ in 0..max_iterations {
         if gradient.iter().all(|g| g.abs() <= gradient_tolerance) {
             break;
@@ -51,14 +51,15 @@ pub(crate) fn minimize(
         }
         direction.iter_mut().for_each(|d| *d = -*d);
         let mut slope = dot(&gradient, &direction);
-        if !(slope < 0.0) {
+        // `is_nan` too: a NaN slope is no descent direction either.
+        if slope >= 0.0 || slope.is_nan() {
             // Not a descent direction (rounding in the memory): restart from steepest descent.
             steps.clear();
             for (d, g) in direction.iter_mut().zip(&gradient) {
                 *d = -first_step * g;
             }
             slope = dot(&gradient, &direction);
-            if !(slope < 0.0) {
+            if slope >= 0.0 || slope.is_nan() {
                 break;
             }
         }

@@ -53,9 +53,14 @@ use crate::structure::{
 use pose::{closed_form_pose, refine_pose, reprojection_cost};
 
 /// A photo whose RMS reprojection error exceeds this, in canonical units (5% of the eye
-/// distance), is reported as fitting badly: its points are not a view of the structure (wrong
-/// landmarks, another face, strong perspective or expression).
+/// distance), and [`BAD_FIT_RATIO`] times the median over the photos (with three photos or
+/// more), is reported as fitting badly: its points are not a view of the structure (wrong
+/// landmarks, another face, strong perspective or expression). The ratio keeps one stranger,
+/// which pulls every photo's error up a little, from getting the good photos flagged too.
 pub const BAD_FIT_UNITS: Real = 2.5;
+
+/// See [`BAD_FIT_UNITS`].
+pub const BAD_FIT_RATIO: Real = 3.0;
 
 /// Poses closer than this (degrees) count as one pose when deciding whether the photos see the
 /// face from enough directions.
@@ -746,9 +751,16 @@ pub fn estimate_depth(
 }
 
 fn warnings_for(photos: &[PhotoFit], iterations: usize, converged: bool) -> Vec<DepthWarning> {
+    let mut errors: Vec<Real> = photos.iter().map(|p| p.rms_units).collect();
+    errors.sort_by(Real::total_cmp);
+    let floor = if photos.len() >= 3 {
+        BAD_FIT_UNITS.max(BAD_FIT_RATIO * errors[errors.len() / 2])
+    } else {
+        BAD_FIT_UNITS
+    };
     let mut warnings: Vec<DepthWarning> = photos
         .iter()
-        .filter(|p| p.rms_units > BAD_FIT_UNITS)
+        .filter(|p| p.rms_units > floor)
         .map(|p| DepthWarning::BadFit {
             photo: p.name.clone(),
             rms_units: p.rms_units,
@@ -759,7 +771,7 @@ fn warnings_for(photos: &[PhotoFit], iterations: usize, converged: bool) -> Vec<
     for p in photos {
         if distinct
             .iter()
-            .all(|q| (q.rotation.inverse() * p.pose.rotation).angle().to_degrees() >= DISTINCT_POSE_DEGREES)
+            .all(|q| q.angle_to_degrees(&p.pose) >= DISTINCT_POSE_DEGREES)
         {
             distinct.push(&p.pose);
         }

@@ -46,6 +46,13 @@ impl Pose {
         Point2::new(self.scale * q.x, self.scale * q.y)
     }
 
+    /// The angle of the rotation between two poses, in degrees (robust near 0, where the
+    /// trace formula loses its accuracy).
+    pub fn angle_to_degrees(&self, other: &Pose) -> Real {
+        let q = nalgebra::UnitQuaternion::from_rotation_matrix(&(self.rotation.inverse() * other.rotation));
+        (2.0 * q.imag().norm().atan2(q.w.abs())).to_degrees()
+    }
+
     /// The angle between the camera's view direction and the face's forward axis (`+z`), in
     /// degrees: 0 for a frontal photo.
     pub fn view_angle_degrees(&self) -> Real {

@@ -1,0 +1,86 @@
+//! Speed of the depth stage on one core: 35 photos of a synthetic face (random poses within yaw
+//! ±60°, pitch ±25°, roll ±15°, landmark noise 1% of the eye distance), the whole estimation
+//! (points-only frontal structure, then depth). Target (issue 4): ≤ 20 ms. `paper (Fixed)` is
+//! the paper's method (frontal `x, y` kept) as the baseline in the same run; `frontal only` is
+//! the Procrustes part alone.
+//!
+//! Run: `cargo bench --bench depth`.
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::Point2;
+use splineface::align::{PhotoPoints, procrustes_frontal};
+use splineface::depth::{DepthOptions, FrontalFreedom, Pose, StructurePrior, estimate_depth};
+use splineface::reference::ReferenceFace;
+use std::hint::black_box;
+
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn uniform(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.next()
+    }
+}
+
+fn photos(count: usize) -> Vec<PhotoPoints> {
+    let mut rng = Lcg(7);
+    let face = ReferenceFace::embedded().structure();
+    (0..count)
+        .map(|k| {
+            let pose = Pose::from_yaw_pitch_roll_degrees(
+                rng.uniform(-60.0, 60.0),
+                rng.uniform(-25.0, 25.0),
+                rng.uniform(-15.0, 15.0),
+                rng.uniform(2.0, 6.0),
+            );
+            // Uniform noise with the standard deviation of 1% of the eye distance.
+            let sigma = 0.01 * 50.0 * pose.scale * 3f64.sqrt();
+            let pixels = face
+                .iter()
+                .map(|p| {
+                    let q = pose.project(p);
+                    Point2::new(
+                        320.0 + q.x + rng.uniform(-sigma, sigma),
+                        240.0 - q.y + rng.uniform(-sigma, sigma),
+                    )
+                })
+                .collect();
+            PhotoPoints::new(format!("photo{k}"), pixels).unwrap()
+        })
+        .collect()
+}
+
+fn bench(c: &mut Criterion) {
+    let photos = photos(35);
+    let prior = StructurePrior::from_reference(ReferenceFace::embedded());
+    let mut group = c.benchmark_group("depth, 35 photos");
+    group.bench_function("frontal only", |b| {
+        b.iter(|| procrustes_frontal(black_box(&photos)).unwrap())
+    });
+    for (name, frontal) in [
+        ("paper (Fixed)", FrontalFreedom::Fixed),
+        ("Gauge", FrontalFreedom::Gauge),
+        ("default (Free)", FrontalFreedom::Free),
+    ] {
+        let options = DepthOptions {
+            frontal,
+            ..DepthOptions::default()
+        };
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let structure = procrustes_frontal(black_box(&photos)).unwrap();
+                estimate_depth(&photos, &structure, &prior, &options).unwrap()
+            })
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
