@@ -11,9 +11,9 @@ use std::time::Instant;
 use nalgebra::{Point2, Point3};
 use splineface::Real;
 use splineface::align::{PhotoPoints, procrustes_frontal};
-use splineface::depth::{DepthOptions, FrontalFreedom, Pose, StructurePrior, correlation, estimate_depth};
+use splineface::depth::{DepthOptions, FrontalFreedom, Pose, StructurePrior, estimate_depth};
 use splineface::reference::ReferenceFace;
-use splineface::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE};
+use splineface::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE, correlation};
 
 struct Lcg(u64);
 

@@ -1,6 +1,6 @@
 //! The points-only frontal structure: generalised affine Procrustes, in closed form.
 
-use nalgebra::{DMatrix, Matrix2x3, OMatrix, Point2, SMatrix, U3, U40};
+use nalgebra::{Matrix2, Matrix2x3, OMatrix, Point2, SMatrix, U40, Vector2};
 
 use super::{AlignError, FrontalMethod, FrontalStructure, PhotoPoints, apply_affine};
 use crate::Real;
@@ -173,11 +173,30 @@ fn orthonormal_span(points: &[Point2<Real>]) -> Option<Basis> {
 
 /// The affine map `[A | t]` that carries `from` onto `to` best in the least-squares sense, or
 /// `None` when `from` lies on a line.
+///
+/// Solved on centred coordinates, `A = (Σ t̃ p̃ᵀ)(Σ p̃ p̃ᵀ)⁻¹`, `t = t̄ − A p̄`: a 2 × 2 system that
+/// is well conditioned for any non-degenerate point set. (nalgebra's SVD solve of the 40 × 3
+/// design `[x y 1]` returned a wrong answer for some sets: the regression test
+/// `an_affine_change_of_one_photo_changes_the_result_by_an_affine_map_at_most` found it.)
 fn fit_affine(from: &[Point2<Real>], to: &SMatrix<Real, POINT_COUNT, 2>) -> Option<Matrix2x3<Real>> {
-    let design = OMatrix::<Real, U40, U3>::from_fn(|j, c| if c < 2 { from[j][c] } else { 1.0 });
-    let solution = DMatrix::from_column_slice(POINT_COUNT, 3, design.as_slice())
-        .svd(true, true)
-        .solve(&DMatrix::from_column_slice(POINT_COUNT, 2, to.as_slice()), 1e-12)
-        .ok()?;
-    Some(Matrix2x3::from_fn(|r, c| solution[(c, r)]))
+    let n = from.len() as Real;
+    let from_mean = from.iter().fold(Vector2::zeros(), |s, p| s + p.coords) / n;
+    let to_mean = Vector2::new(to.column(0).sum(), to.column(1).sum()) / n;
+    let (mut spread, mut cross) = (Matrix2::zeros(), Matrix2::zeros());
+    for (j, p) in from.iter().enumerate() {
+        let a = p.coords - from_mean;
+        let b = Vector2::new(to[(j, 0)], to[(j, 1)]) - to_mean;
+        spread += a * a.transpose();
+        cross += b * a.transpose();
+    }
+    let linear = cross * spread.try_inverse()?;
+    let translation = to_mean - linear * from_mean;
+    Some(Matrix2x3::new(
+        linear[(0, 0)],
+        linear[(0, 1)],
+        translation.x,
+        linear[(1, 0)],
+        linear[(1, 1)],
+        translation.y,
+    ))
 }

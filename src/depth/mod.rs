@@ -793,17 +793,3 @@ fn warnings_for(photos: &[PhotoFit], iterations: usize, converged: bool) -> Vec<
     }
     warnings
 }
-
-/// Pearson's correlation of two equally long samples (`None` when either is constant).
-pub fn correlation(x: &[Real], y: &[Real]) -> Option<Real> {
-    assert_eq!(x.len(), y.len(), "correlation of samples of different lengths");
-    let n = x.len() as Real;
-    let (mx, my) = (x.iter().sum::<Real>() / n, y.iter().sum::<Real>() / n);
-    let (mut vx, mut vy, mut cxy) = (0.0, 0.0, 0.0);
-    for (a, b) in x.iter().zip(y) {
-        vx += (a - mx) * (a - mx);
-        vy += (b - my) * (b - my);
-        cxy += (a - mx) * (b - my);
-    }
-    (vx > 0.0 && vy > 0.0).then(|| cxy / (vx * vy).sqrt())
-}

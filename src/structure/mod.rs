@@ -24,8 +24,8 @@ mod similarity;
 
 pub use frame::{HALF_EYE_DISTANCE, unify, unify_2d};
 pub use similarity::{
-    delaunay_edges, edge_lengths, multi_substructure_similarity, multi_substructure_similarity_gradient,
-    ssim, substructures,
+    correlation, delaunay_edges, edge_lengths, multi_substructure_similarity,
+    multi_substructure_similarity_gradient, ssim, substructures,
 };
 
 use nalgebra::{Point, Point3, SVector};

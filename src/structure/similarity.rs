@@ -109,6 +109,22 @@ pub fn ssim(x: &[Real], y: &[Real], dynamic_range: Real) -> Real {
     if x.is_empty() {
         return 1.0;
     }
+    let Moments { mx, my, vx, vy, cxy } = moments(x, y);
+    let c1 = (0.01 * dynamic_range).powi(2);
+    let c2 = (0.03 * dynamic_range).powi(2);
+    (2.0 * mx * my + c1) * (2.0 * cxy + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+}
+
+/// Population (1/n) means, variances and covariance of two equally long, non-empty samples.
+struct Moments {
+    mx: Real,
+    my: Real,
+    vx: Real,
+    vy: Real,
+    cxy: Real,
+}
+
+fn moments(x: &[Real], y: &[Real]) -> Moments {
     let n = x.len() as Real;
     let (mx, my) = (x.iter().sum::<Real>() / n, y.iter().sum::<Real>() / n);
     let (mut vx, mut vy, mut cxy) = (0.0, 0.0, 0.0);
@@ -117,10 +133,27 @@ pub fn ssim(x: &[Real], y: &[Real], dynamic_range: Real) -> Real {
         vy += (b - my) * (b - my);
         cxy += (a - mx) * (b - my);
     }
-    let (vx, vy, cxy) = (vx / n, vy / n, cxy / n);
-    let c1 = (0.01 * dynamic_range).powi(2);
-    let c2 = (0.03 * dynamic_range).powi(2);
-    (2.0 * mx * my + c1) * (2.0 * cxy + c2) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+    Moments {
+        mx,
+        my,
+        vx: vx / n,
+        vy: vy / n,
+        cxy: cxy / n,
+    }
+}
+
+/// Pearson's correlation of two equally long samples, the paper's measure for the 40 depths;
+/// `None` when either sample is constant (or empty).
+///
+/// # Panics
+/// If the lengths differ.
+pub fn correlation(x: &[Real], y: &[Real]) -> Option<Real> {
+    assert_eq!(x.len(), y.len(), "correlation of samples of different lengths");
+    if x.is_empty() {
+        return None;
+    }
+    let Moments { vx, vy, cxy, .. } = moments(x, y);
+    (vx > 0.0 && vy > 0.0).then(|| cxy / (vx * vy).sqrt())
 }
 
 /// The multi-substructure similarity `SIM = Πₖ (SSIM(V_ref^Gₖ, V^Gₖ) + 1) / 2` over the seven

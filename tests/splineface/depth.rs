@@ -6,10 +6,10 @@ use splineface::Real;
 use splineface::align::{AlignError, FrontalStructure, PhotoPoints, procrustes_frontal};
 use splineface::depth::{
     DepthError, DepthEstimate, DepthOptions, DepthWarning, FrontalFreedom, FrontalGauge, Pose,
-    StructurePrior, correlation, estimate_depth,
+    StructurePrior, estimate_depth,
 };
 use splineface::reference::ReferenceFace;
-use splineface::structure::{LEFT_EYE_CENTRE, POINTS, RIGHT_EYE_CENTRE};
+use splineface::structure::{LEFT_EYE_CENTRE, POINTS, RIGHT_EYE_CENTRE, correlation};
 
 use crate::common::Lcg;
 
