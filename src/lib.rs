@@ -45,6 +45,7 @@
 pub mod align;
 pub mod bspline;
 pub mod depth;
+pub mod face;
 pub mod io;
 pub mod landmarks;
 pub mod mesh;

@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Affine3, Point2, Point3};
+use nalgebra::{Affine3, Point2, Point3, Vector3};
 
 use crate::Real;
 
@@ -51,6 +51,7 @@ pub struct TriangleMesh {
     positions: Vec<Point3<Real>>,
     triangles: Vec<[u32; 3]>,
     texture: Option<TextureCoordinates>,
+    normals: Option<Vec<Vector3<Real>>>,
 }
 
 /// A mesh file that could not be read or written.
@@ -143,6 +144,7 @@ impl TriangleMesh {
             positions,
             triangles,
             texture: None,
+            normals: None,
         })
     }
 
@@ -172,6 +174,38 @@ impl TriangleMesh {
         Ok(self)
     }
 
+    /// This mesh with one unit normal per vertex (replacing any it had). Writers store them
+    /// (OBJ `vn`, PLY `nx ny nz`, glTF `NORMAL`); readers do not read them back.
+    ///
+    /// # Errors
+    /// [`MeshProblem::Syntax`] for another count than the vertices', [`MeshProblem::NonFinite`]
+    /// for a normal that is not finite and of unit length (to 10⁻⁶).
+    pub fn with_normals(mut self, normals: Vec<Vector3<Real>>) -> Result<Self, MeshProblem> {
+        if normals.len() != self.positions.len() {
+            return Err(syntax(
+                "normals",
+                format!("{} normals for {} vertices", normals.len(), self.positions.len()),
+            ));
+        }
+        if let Some(k) = normals.iter().position(|n| {
+            !matches!(
+                (n.norm() - 1.0).abs().partial_cmp(&1e-6),
+                Some(std::cmp::Ordering::Less)
+            )
+        }) {
+            return Err(MeshProblem::NonFinite {
+                location: format!("normal {k}"),
+            });
+        }
+        self.normals = Some(normals);
+        Ok(self)
+    }
+
+    /// The per-vertex unit normals, if the mesh has them.
+    pub fn normals(&self) -> Option<&[Vector3<Real>]> {
+        self.normals.as_deref()
+    }
+
     /// The vertex positions, in file order.
     pub fn positions(&self) -> &[Point3<Real>] {
         &self.positions
@@ -188,12 +222,27 @@ impl TriangleMesh {
         self.texture.as_ref()
     }
 
-    /// The mesh with every position mapped by `transform` (texture coordinates unchanged).
+    /// The mesh with every position mapped by `transform` (texture coordinates unchanged;
+    /// normals mapped by the inverse transpose and renormalised, and dropped if `transform` is
+    /// singular).
     pub fn transformed(&self, transform: &Affine3<Real>) -> Self {
+        let linear = transform.matrix().fixed_view::<3, 3>(0, 0).into_owned();
+        let cofactor = linear.try_inverse().map(|inverse| inverse.transpose());
+        let normals = match (&self.normals, cofactor) {
+            (Some(normals), Some(cofactor)) => {
+                let mapped: Option<Vec<Vector3<Real>>> = normals
+                    .iter()
+                    .map(|n| (cofactor * n).try_normalize(0.0))
+                    .collect();
+                mapped
+            }
+            _ => None,
+        };
         Self {
             positions: self.positions.iter().map(|p| transform * p).collect(),
             triangles: self.triangles.clone(),
             texture: self.texture.clone(),
+            normals,
         }
     }
 

@@ -174,38 +174,58 @@ fn resolve(index: i64, count: usize, line: usize, what: &'static str) -> Result<
     u32::try_from(index - 1).map_err(|_| MeshProblem::TooLarge(format!("index {index}")))
 }
 
-/// Writes a mesh as OBJ text: `v` lines in order, `vt` lines if textured, then `f` lines
-/// (`a/ta b/tb c/tc` or `a b c`). Numbers are written in their shortest exact form, so
-/// [`parse_obj`] reads back the same mesh bit for bit.
+/// Writes a mesh as OBJ text: `v` lines in order, `vt` lines if textured, `vn` lines if the
+/// mesh has normals (one per vertex, indexed like the positions), then `f` lines (`a`, `a/ta`,
+/// `a//na` or `a/ta/na`). Numbers are written in their shortest exact form, so [`parse_obj`]
+/// reads back the same positions, triangles and texture coordinates bit for bit.
 pub fn format_obj(mesh: &TriangleMesh) -> String {
+    format_obj_with_material(mesh, None)
+}
+
+/// [`format_obj`] with `mtllib FILE` and `usemtl NAME` lines naming a material.
+pub(crate) fn format_obj_with_material(mesh: &TriangleMesh, material: Option<(&str, &str)>) -> String {
     let mut out = String::with_capacity(40 * (mesh.positions().len() + mesh.triangles().len()));
     out.push_str("# written by splineface\n");
+    if let Some((library, _)) = material {
+        let _ = writeln!(out, "mtllib {library}");
+    }
     for p in mesh.positions() {
         let _ = writeln!(out, "v {:?} {:?} {:?}", p.x, p.y, p.z);
     }
-    match mesh.texture() {
-        Some(texture) => {
-            for t in &texture.uvs {
-                let _ = writeln!(out, "vt {:?} {:?}", t.x, t.y);
-            }
-            for (f, t) in mesh.triangles().iter().zip(&texture.triangles) {
-                let _ = writeln!(
-                    out,
-                    "f {}/{} {}/{} {}/{}",
-                    f[0] + 1,
-                    t[0] + 1,
-                    f[1] + 1,
-                    t[1] + 1,
-                    f[2] + 1,
-                    t[2] + 1
-                );
+    if let Some(texture) = mesh.texture() {
+        for t in &texture.uvs {
+            let _ = writeln!(out, "vt {:?} {:?}", t.x, t.y);
+        }
+    }
+    if let Some(normals) = mesh.normals() {
+        for n in normals {
+            let _ = writeln!(out, "vn {:?} {:?} {:?}", n.x, n.y, n.z);
+        }
+    }
+    if let Some((_, name)) = material {
+        let _ = writeln!(out, "usemtl {name}");
+    }
+    let has_normals = mesh.normals().is_some();
+    for (k, f) in mesh.triangles().iter().enumerate() {
+        out.push('f');
+        for (c, &corner) in f.iter().enumerate() {
+            let v = corner + 1;
+            match (mesh.texture(), has_normals) {
+                (Some(t), true) => {
+                    let _ = write!(out, " {v}/{}/{v}", t.triangles[k][c] + 1);
+                }
+                (Some(t), false) => {
+                    let _ = write!(out, " {v}/{}", t.triangles[k][c] + 1);
+                }
+                (None, true) => {
+                    let _ = write!(out, " {v}//{v}");
+                }
+                (None, false) => {
+                    let _ = write!(out, " {v}");
+                }
             }
         }
-        None => {
-            for f in mesh.triangles() {
-                let _ = writeln!(out, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1);
-            }
-        }
+        out.push('\n');
     }
     out
 }

@@ -455,6 +455,10 @@ pub fn encode_ply(mesh: &TriangleMesh, encoding: PlyEncoding) -> Vec<u8> {
     if vertex_uv.is_some() {
         header.push_str("property double u\nproperty double v\n");
     }
+    let normals = mesh.normals();
+    if normals.is_some() {
+        header.push_str("property double nx\nproperty double ny\nproperty double nz\n");
+    }
     let _ = writeln!(header, "element face {}", mesh.triangles().len());
     header.push_str("property list uchar uint vertex_indices\n");
     if corner_uv.is_some() {
@@ -469,6 +473,9 @@ pub fn encode_ply(mesh: &TriangleMesh, encoding: PlyEncoding) -> Vec<u8> {
                 let _ = write!(text, "{:?} {:?} {:?}", p.x, p.y, p.z);
                 if let Some(t) = vertex_uv {
                     let _ = write!(text, " {:?} {:?}", t.uvs[k].x, t.uvs[k].y);
+                }
+                if let Some(n) = normals {
+                    let _ = write!(text, " {:?} {:?} {:?}", n[k].x, n[k].y, n[k].z);
                 }
                 text.push('\n');
             }
@@ -493,6 +500,11 @@ pub fn encode_ply(mesh: &TriangleMesh, encoding: PlyEncoding) -> Vec<u8> {
                 if let Some(t) = vertex_uv {
                     out.extend_from_slice(&t.uvs[k].x.to_le_bytes());
                     out.extend_from_slice(&t.uvs[k].y.to_le_bytes());
+                }
+                if let Some(n) = normals {
+                    for c in n[k].iter() {
+                        out.extend_from_slice(&c.to_le_bytes());
+                    }
                 }
             }
             for (k, f) in mesh.triangles().iter().enumerate() {

@@ -11,6 +11,7 @@ mod bspline_serde;
 mod bspline_surface;
 mod common;
 mod depth;
+mod face;
 mod landmarks;
 mod mesh;
 mod reference;

@@ -1,0 +1,126 @@
+//! Shared by the programs in `tools/`: a seeded random generator and ICT-FaceKit subjects.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use nalgebra::{Point3, Similarity3};
+use splineface::Real;
+use splineface::landmarks::read_vertex_indices;
+use splineface::mesh::{TriangleMesh, read_mesh};
+use splineface::structure::{IBUG_POINT_COUNT, from_ibug68, unify};
+
+/// A 64-bit linear congruential generator (Knuth's MMIX constants): small, seeded, the same
+/// numbers on every machine.
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    /// Uniform in `[0, 1)`.
+    pub fn next(&mut self) -> Real {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as Real / (1u64 << 53) as Real
+    }
+
+    /// Uniform in `[a, b)`.
+    pub fn uniform(&mut self, a: Real, b: Real) -> Real {
+        a + (b - a) * self.next()
+    }
+
+    /// Standard normal (Box–Muller).
+    pub fn gaussian(&mut self) -> Real {
+        let u = self.next().max(1e-300);
+        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.next()).cos()
+    }
+}
+
+/// The ICT-FaceKit data (`../shared/data/ict-face`): the neutral face, its 68 landmark
+/// vertices and the identity modes.
+pub struct Ict {
+    pub neutral: TriangleMesh,
+    pub landmarks: Vec<usize>,
+    pub identities: Vec<f32>,
+    pub modes: usize,
+}
+
+/// A subject drawn from the ICT identity space, unified into the canonical frame.
+pub struct Subject {
+    /// The face mesh, canonical frame (50 units between the eye centres).
+    pub mesh: TriangleMesh,
+    /// Its 40-point structure, canonical frame.
+    pub structure: Vec<Point3<Real>>,
+    /// From the data's centimetres to the canonical frame.
+    pub to_canonical: Similarity3<Real>,
+}
+
+impl Ict {
+    /// The default location, relative to the repository.
+    pub fn default_dir() -> PathBuf {
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/ict-face"))
+    }
+
+    pub fn load(dir: &Path) -> Result<Self> {
+        let neutral = read_mesh(&dir.join("neutral_face.obj"))?;
+        let landmarks = read_vertex_indices(
+            &dir.join("landmarks68.txt"),
+            IBUG_POINT_COUNT,
+            neutral.positions().len(),
+        )?;
+        let path = dir.join("identities.f32");
+        let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        let per_mode = neutral.positions().len() * 3;
+        if bytes.len() % (4 * per_mode) != 0 {
+            bail!(
+                "{}: {} bytes is not a whole number of modes",
+                path.display(),
+                bytes.len()
+            );
+        }
+        let identities: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        let modes = identities.len() / per_mode;
+        Ok(Ict {
+            neutral,
+            landmarks,
+            identities,
+            modes,
+        })
+    }
+
+    /// `neutral + Σₖ wₖ·modeₖ`, unified by its structure; `weights` may be shorter than the
+    /// modes (the rest are 0).
+    pub fn subject(&self, weights: &[Real]) -> Result<Subject> {
+        let n = self.neutral.positions().len();
+        let mut positions = self.neutral.positions().to_vec();
+        for (k, &w) in weights.iter().enumerate().take(self.modes) {
+            let mode = &self.identities[k * n * 3..(k + 1) * n * 3];
+            for (i, p) in positions.iter_mut().enumerate() {
+                for c in 0..3 {
+                    p[c] += w * Real::from(mode[3 * i + c]);
+                }
+            }
+        }
+        let mesh = TriangleMesh::new(positions, self.neutral.triangles().to_vec())?;
+        let ibug: Vec<Point3<Real>> = self.landmarks.iter().map(|&i| mesh.positions()[i]).collect();
+        let structure = from_ibug68(&ibug)?;
+        let (to_canonical, structure) = unify(&structure)?;
+        let mesh = mesh.transformed(&nalgebra::Affine3::from_matrix_unchecked(
+            to_canonical.to_homogeneous(),
+        ));
+        Ok(Subject {
+            mesh,
+            structure,
+            to_canonical,
+        })
+    }
+
+    /// A random identity with `w ~ N(0, scale²)` on every mode.
+    pub fn random_subject(&self, rng: &mut Lcg, scale: Real) -> Result<Subject> {
+        let weights: Vec<Real> = (0..self.modes).map(|_| scale * rng.gaussian()).collect();
+        self.subject(&weights)
+    }
+}
