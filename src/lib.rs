@@ -45,11 +45,13 @@
 pub mod align;
 pub mod bspline;
 pub mod depth;
+pub mod export;
 pub mod face;
 pub mod io;
 pub mod landmarks;
 pub mod mesh;
 pub mod reference;
+pub mod render;
 pub mod structure;
 
 /// The scalar type of all geometry.

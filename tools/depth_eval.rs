@@ -6,7 +6,12 @@
 //!
 //! Run: `cargo run --release --example depth_eval [-- PHOTOS SCENES]` (defaults 12 and 20).
 
+#[path = "common/mod.rs"]
+mod common;
+
 use std::time::Instant;
+
+use common::Lcg;
 
 use nalgebra::{Point2, Point3};
 use splineface::Real;
@@ -14,25 +19,6 @@ use splineface::align::{PhotoPoints, procrustes_frontal};
 use splineface::depth::{DepthOptions, FrontalFreedom, Pose, StructurePrior, estimate_depth};
 use splineface::reference::ReferenceFace;
 use splineface::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE, correlation};
-
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> Real {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as Real / (1u64 << 53) as Real
-    }
-    fn uniform(&mut self, a: Real, b: Real) -> Real {
-        a + (b - a) * self.next()
-    }
-    fn gaussian(&mut self) -> Real {
-        let u = self.next().max(1e-300);
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.next()).cos()
-    }
-}
 
 fn truth() -> Vec<Point3<Real>> {
     ReferenceFace::embedded()

@@ -175,6 +175,8 @@ pub struct PhotoFit {
     pub pose: Pose,
     /// RMS reprojection error over the 40 points, in the photo's pixels.
     pub rms_pixels: Real,
+    /// The photo's eye midpoint in pixels (`y` down), where the structure's origin projects.
+    pub eye_midpoint: Point2<Real>,
     /// The same in canonical units (50 between the eye centres).
     pub rms_units: Real,
 }
@@ -207,6 +209,14 @@ pub enum DepthWarning {
         /// Iterations run.
         iterations: usize,
     },
+}
+
+impl PhotoFit {
+    /// Where the photo sees a point of the canonical frame, in its pixels (`y` down).
+    pub fn pixel(&self, point: &Point3<Real>) -> Point2<Real> {
+        let q = self.pose.project(point);
+        Point2::new(self.eye_midpoint.x + q.x, self.eye_midpoint.y - q.y)
+    }
 }
 
 impl std::fmt::Display for DepthWarning {
@@ -300,6 +310,8 @@ pub enum DepthError {
 struct View {
     points: Vec<Point2<Real>>,
     kappa: Real,
+    /// The eye midpoint, pixels, `y` down.
+    middle: Point2<Real>,
 }
 
 fn prepare_view(photo: &PhotoPoints, frontal_radius: Real) -> Result<View, DepthError> {
@@ -317,6 +329,7 @@ fn prepare_view(photo: &PhotoPoints, frontal_radius: Real) -> Result<View, Depth
     Ok(View {
         points: centred.iter().map(|v| Point2::from(v * kappa)).collect(),
         kappa,
+        middle: Point2::new(middle.x, -middle.y),
     })
 }
 
@@ -728,6 +741,7 @@ pub fn estimate_depth(
                     scale: pose.scale / view.kappa,
                 },
                 rms_pixels: rms_units / view.kappa,
+                eye_midpoint: view.middle,
                 rms_units,
             }
         })

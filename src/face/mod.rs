@@ -32,7 +32,7 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
-pub use tessellate::{ClippedMesh, MeshOptions};
+pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -25,6 +25,7 @@ mod obj;
 mod ply;
 mod raster;
 
+pub(crate) use obj::format_obj_with_material;
 pub use obj::{format_obj, parse_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};
 pub use raster::{Raster, front_heights};

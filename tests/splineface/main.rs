@@ -15,4 +15,5 @@ mod face;
 mod landmarks;
 mod mesh;
 mod reference;
+mod render;
 mod structure;

@@ -1,0 +1,191 @@
+//! Orthographic depth maps of meshes: rendering, and writing them as EXR (float), 16-bit PNG
+//! and shaded previews.
+//!
+//! A [`View`] turns the mesh (the camera looks along `−z` of the turned mesh, `+y` up); a
+//! [`Raster`] places the pixels on the turned `x`-`y` plane. The map holds the **height** `z`
+//! of the front-most surface above each pixel centre (larger is nearer the viewer), `NaN` where
+//! no triangle covers it. Files never pass the background off as a depth: the EXR has a
+//! coverage channel, the PNG reserves 0.
+
+mod raster;
+mod write;
+
+use nalgebra::{Point2, Point3, Rotation3, Vector3};
+
+use crate::Real;
+pub use crate::mesh::Raster;
+use crate::mesh::TriangleMesh;
+pub use raster::render_heights;
+pub use write::{DepthFileError, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png};
+
+/// A viewing direction: the rotation applied to the mesh before looking along `−z`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct View {
+    /// Turns the mesh's frame into the camera's.
+    pub rotation: Rotation3<Real>,
+}
+
+impl View {
+    /// The frontal view (no rotation): a canonical face seen from the front.
+    pub fn front() -> Self {
+        View {
+            rotation: Rotation3::identity(),
+        }
+    }
+
+    /// The view of a face with the given pose angles, as [`crate::depth::Pose`] defines them
+    /// (yaw turns the nose toward the image's right, pitch tips it down, roll turns the face
+    /// counter-clockwise).
+    pub fn from_yaw_pitch_roll_degrees(yaw: Real, pitch: Real, roll: Real) -> Self {
+        View {
+            rotation: crate::depth::Pose::from_yaw_pitch_roll_degrees(yaw, pitch, roll, 1.0).rotation,
+        }
+    }
+
+    /// Parses `front` or `YAW,PITCH,ROLL` (degrees, each finite and within ±180).
+    ///
+    /// # Errors
+    /// A message saying what was expected.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        if text.trim().eq_ignore_ascii_case("front") {
+            return Ok(View::front());
+        }
+        let parts: Vec<&str> = text.split(',').map(str::trim).collect();
+        let angles: Option<Vec<Real>> = parts.iter().map(|p| p.parse::<Real>().ok()).collect();
+        match angles.as_deref() {
+            Some(&[yaw, pitch, roll])
+                if [yaw, pitch, roll]
+                    .iter()
+                    .all(|a| a.is_finite() && a.abs() <= 180.0) =>
+            {
+                Ok(View::from_yaw_pitch_roll_degrees(yaw, pitch, roll))
+            }
+            _ => Err(format!(
+                "`{text}` is not a view: expected `front` or YAW,PITCH,ROLL in degrees (each within ±180)"
+            )),
+        }
+    }
+
+    /// A point in the camera's frame.
+    pub fn apply(&self, p: &Point3<Real>) -> Point3<Real> {
+        self.rotation * p
+    }
+}
+
+/// The raster of `width × height` square pixels that frames the points seen from `view`:
+/// their `x`-`y` bounding box grown by `margin` (a fraction of its larger side) on every side,
+/// centred, with the pixel size set by the tighter direction.
+///
+/// # Errors
+/// A message for zero sizes, sizes over 16384, an empty or non-finite point set, or a
+/// margin that is negative or not finite.
+pub fn frame_raster(
+    points: impl IntoIterator<Item = Point3<Real>>,
+    view: &View,
+    width: usize,
+    height: usize,
+    margin: Real,
+) -> Result<Raster, String> {
+    if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+        return Err(format!(
+            "{width}×{height} pixels: each side must be between 1 and {MAX_SIDE}"
+        ));
+    }
+    if !(margin >= 0.0 && margin.is_finite()) {
+        return Err(format!("margin {margin} must be non-negative and finite"));
+    }
+    let mut lo = Point2::new(Real::INFINITY, Real::INFINITY);
+    let mut hi = Point2::new(Real::NEG_INFINITY, Real::NEG_INFINITY);
+    for p in points {
+        let q = view.apply(&p);
+        lo = lo.inf(&q.xy());
+        hi = hi.sup(&q.xy());
+    }
+    if !(lo.x.is_finite() && lo.y.is_finite() && hi.x.is_finite() && hi.y.is_finite()) {
+        return Err("no finite points to frame".to_owned());
+    }
+    let side = (hi.x - lo.x).max(hi.y - lo.y).max(Real::MIN_POSITIVE);
+    let extent = (hi - lo).add_scalar(2.0 * margin * side);
+    let spacing = (extent.x / width as Real)
+        .max(extent.y / height as Real)
+        .max(1e-300);
+    let centre = nalgebra::center(&lo, &hi);
+    Ok(Raster {
+        origin: Point2::new(
+            centre.x - spacing * (width as Real - 1.0) / 2.0,
+            centre.y - spacing * (height as Real - 1.0) / 2.0,
+        ),
+        spacing,
+        width,
+        height,
+    })
+}
+
+/// The largest side of a depth map, in pixels.
+pub const MAX_SIDE: usize = 16384;
+
+/// A depth map: heights over a raster (see the module documentation), row `j` at
+/// `y = origin.y + j·spacing` (so row 0 is the *bottom*; image files flip it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DepthMap {
+    /// Where the pixels are.
+    pub raster: Raster,
+    /// `width × height` heights, row-major from the bottom row; `NaN` is background.
+    pub heights: Vec<Real>,
+}
+
+impl DepthMap {
+    /// Renders `mesh` seen from `view` over `raster`.
+    pub fn render(mesh: &TriangleMesh, view: &View, raster: &Raster) -> Self {
+        let turned: Vec<Point3<Real>> = mesh.positions().iter().map(|p| view.apply(p)).collect();
+        DepthMap {
+            raster: *raster,
+            heights: render_heights(&turned, mesh.triangles(), raster),
+        }
+    }
+
+    /// The height at pixel `(i, j)` (`j` from the bottom), `None` on background.
+    pub fn get(&self, i: usize, j: usize) -> Option<Real> {
+        let h = self.heights[j * self.raster.width + i];
+        h.is_finite().then_some(h)
+    }
+
+    /// The number of covered pixels.
+    pub fn covered(&self) -> usize {
+        self.heights.iter().filter(|h| h.is_finite()).count()
+    }
+
+    /// The smallest and largest height, `None` if nothing is covered.
+    pub fn range(&self) -> Option<(Real, Real)> {
+        let mut covered = self.heights.iter().copied().filter(|h| h.is_finite());
+        let first = covered.next()?;
+        Some(covered.fold((first, first), |(lo, hi), h| (lo.min(h), hi.max(h))))
+    }
+
+    /// The unit normal of the height field at pixel `(i, j)` from central differences
+    /// (one-sided at the edge of the covered region), `None` on background.
+    pub fn normal(&self, i: usize, j: usize) -> Option<Vector3<Real>> {
+        let h = self.get(i, j)?;
+        let s = self.raster.spacing;
+        let slope = |a: Option<Real>, b: Option<Real>, step: Real| match (a, b) {
+            (Some(a), Some(b)) => (b - a) / (2.0 * step),
+            (Some(a), None) => (h - a) / step,
+            (None, Some(b)) => (b - h) / step,
+            (None, None) => 0.0,
+        };
+        let left = if i > 0 { self.get(i - 1, j) } else { None };
+        let right = if i + 1 < self.raster.width {
+            self.get(i + 1, j)
+        } else {
+            None
+        };
+        let below = if j > 0 { self.get(i, j - 1) } else { None };
+        let above = if j + 1 < self.raster.height {
+            self.get(i, j + 1)
+        } else {
+            None
+        };
+        let (dx, dy) = (slope(left, right, s), slope(below, above, s));
+        Vector3::new(-dx, -dy, 1.0).try_normalize(0.0)
+    }
+}

@@ -1,0 +1,264 @@
+//! Depth-map files: EXR (float32 with a coverage channel), 16-bit PNG, shaded previews and
+//! error heatmaps with a colour bar.
+
+use std::io::Cursor;
+
+use nalgebra::Vector3;
+
+use super::DepthMap;
+use crate::Real;
+
+/// A depth map that could not be encoded.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct DepthFileError(pub String);
+
+/// Encodes the map as OpenEXR, one layer `depth` of two float32 channels, rows from the top:
+/// `Z`, the distance from the view plane through the origin along the viewing direction
+/// (`−height`: positive behind the plane, negative in front of it, in the mesh's units), and
+/// `A`, 1 on the surface and 0 on the background (where `Z` is 0 and means nothing). The pixel
+/// size and the position of the top-left pixel centre are stored as the layer attributes
+/// `splineface_pixel_size` and `splineface_origin` (`x`, `y` of the view frame).
+///
+/// # Errors
+/// The encoder's message (should not happen for a valid map).
+pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+    use exr::prelude::*;
+    let (width, height) = (map.raster.width, map.raster.height);
+    let pixels = SpecificChannels::build()
+        .with_channel("A")
+        .with_channel("Z")
+        .with_pixel_fn(|position: Vec2<usize>| {
+            let j = height - 1 - position.y();
+            match map.get(position.x(), j) {
+                Some(h) => (1.0_f32, -h as f32),
+                None => (0.0_f32, 0.0_f32),
+            }
+        });
+    let top_left = map.raster.position(0, height - 1);
+    let mut attributes = LayerAttributes::named("depth");
+    attributes.other.insert(
+        Text::from("splineface_pixel_size"),
+        AttributeValue::F64(map.raster.spacing),
+    );
+    attributes.other.insert(
+        Text::from("splineface_origin"),
+        AttributeValue::FloatVec2(Vec2(top_left.x as f32, top_left.y as f32)),
+    );
+    let layer = Layer::new((width, height), attributes, Encoding::SMALL_LOSSLESS, pixels);
+    let image = Image::from_layer(layer);
+    let mut bytes = Vec::new();
+    image
+        .write()
+        .to_buffered(Cursor::new(&mut bytes))
+        .map_err(|e| DepthFileError(e.to_string()))?;
+    Ok(bytes)
+}
+
+/// Encodes the map as a 16-bit greyscale PNG, rows from the top: 0 is background; covered
+/// pixels run from 1 (the lowest height) to 65535 (the highest, nearest the viewer). The
+/// mapping back to heights is stored in a `tEXt` chunk `splineface-depth` as
+/// `height = LOW + (value - 1) * STEP` with both numbers given.
+///
+/// # Errors
+/// The encoder's message.
+pub fn encode_depth_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+    let (width, height) = (map.raster.width, map.raster.height);
+    let (lo, hi) = map.range().unwrap_or((0.0, 0.0));
+    let step = if hi > lo { (hi - lo) / 65534.0 } else { 1.0 };
+    let mut data = Vec::with_capacity(2 * width * height);
+    for r in 0..height {
+        let j = height - 1 - r;
+        for i in 0..width {
+            let value: u16 = match map.get(i, j) {
+                Some(h) => 1 + ((h - lo) / step).round().clamp(0.0, 65534.0) as u16,
+                None => 0,
+            };
+            data.extend_from_slice(&value.to_be_bytes());
+        }
+    }
+    let mut bytes = Vec::new();
+    {
+        let mut encoder = png::Encoder::new(Cursor::new(&mut bytes), width as u32, height as u32);
+        encoder.set_color(png::ColorType::Grayscale);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        encoder
+            .add_text_chunk(
+                "splineface-depth".to_owned(),
+                format!("height = {lo:?} + (value - 1) * {step:?}; value 0 = background"),
+            )
+            .map_err(|e| DepthFileError(e.to_string()))?;
+        let mut writer = encoder
+            .write_header()
+            .map_err(|e| DepthFileError(e.to_string()))?;
+        writer
+            .write_image_data(&data)
+            .map_err(|e| DepthFileError(e.to_string()))?;
+        writer.finish().map_err(|e| DepthFileError(e.to_string()))?;
+    }
+    Ok(bytes)
+}
+
+fn encode_rgb(image: image::RgbImage) -> Result<Vec<u8>, DepthFileError> {
+    let mut bytes = Vec::new();
+    image
+        .write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| DepthFileError(e.to_string()))?;
+    Ok(bytes)
+}
+
+/// A shaded preview of the map as an 8-bit RGB PNG: the height field's normals lit by a
+/// light from the upper left in front (Lambert, 15% ambient), background dark grey.
+///
+/// # Errors
+/// The encoder's message.
+pub fn shaded_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+    let (width, height) = (map.raster.width, map.raster.height);
+    let light = Vector3::new(-0.4, 0.5, 1.0).normalize();
+    let image = image::RgbImage::from_fn(width as u32, height as u32, |x, y| {
+        let j = height - 1 - y as usize;
+        match map.normal(x as usize, j) {
+            Some(n) => {
+                let v = (255.0 * (0.15 + 0.85 * n.dot(&light).max(0.0))).round() as u8;
+                image::Rgb([v, v, v])
+            }
+            None => image::Rgb([40, 40, 40]),
+        }
+    });
+    encode_rgb(image)
+}
+
+/// The viridis colour map at `t ∈ [0, 1]` (9 samples of matplotlib's table, interpolated).
+pub fn viridis(t: Real) -> [u8; 3] {
+    const TABLE: [[Real; 3]; 9] = [
+        [68.0, 1.0, 84.0],
+        [71.0, 44.0, 122.0],
+        [59.0, 81.0, 139.0],
+        [44.0, 113.0, 142.0],
+        [33.0, 144.0, 141.0],
+        [39.0, 173.0, 129.0],
+        [92.0, 200.0, 99.0],
+        [170.0, 220.0, 50.0],
+        [253.0, 231.0, 37.0],
+    ];
+    let x = if t.is_finite() {
+        t.clamp(0.0, 1.0) * 8.0
+    } else {
+        0.0
+    };
+    let k = (x.floor() as usize).min(7);
+    let f = x - k as Real;
+    let mix = |c: usize| (TABLE[k][c] + f * (TABLE[k + 1][c] - TABLE[k][c])).round() as u8;
+    [mix(0), mix(1), mix(2)]
+}
+
+/// 3 × 5 glyphs for the colour bar's labels, one row per `u8` (3 low bits, left to right).
+fn glyph(c: char) -> Option<[u8; 5]> {
+    Some(match c {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '.' => [0, 0, 0, 0, 2],
+        '-' => [0, 0, 7, 0, 0],
+        'm' => [0, 0, 7, 7, 5],
+        ' ' => [0, 0, 0, 0, 0],
+        _ => return None,
+    })
+}
+
+fn draw_text(image: &mut image::RgbImage, text: &str, x: u32, y: u32, scale: u32) {
+    let mut cursor = x;
+    for c in text.chars() {
+        let Some(rows) = glyph(c) else { continue };
+        for (r, bits) in rows.iter().enumerate() {
+            for col in 0..3u32 {
+                if bits & (4 >> col) != 0 {
+                    for dy in 0..scale {
+                        for dx in 0..scale {
+                            let (px, py) = (cursor + col * scale + dx, y + r as u32 * scale + dy);
+                            if px < image.width() && py < image.height() {
+                                image.put_pixel(px, py, image::Rgb([255, 255, 255]));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        cursor += 4 * scale;
+    }
+}
+
+/// A heatmap of per-pixel values (row-major from the bottom row, `NaN` = no value, drawn dark
+/// grey) as an RGB PNG, viridis from 0 to `max`, with a colour bar on the right labelled with
+/// 0, `max`/2 and `max` followed by `unit` (digits, `.`, `-`, `m` and spaces are drawn; other
+/// characters are skipped).
+///
+/// # Errors
+/// A message for a size mismatch or a `max` that is not positive and finite.
+pub fn heatmap_png(
+    values: &[Real],
+    width: usize,
+    height: usize,
+    max: Real,
+    unit: &str,
+) -> Result<Vec<u8>, DepthFileError> {
+    if values.len() != width * height || width == 0 || height == 0 {
+        return Err(DepthFileError(format!(
+            "{} values for a {width}×{height} heatmap",
+            values.len()
+        )));
+    }
+    if !(max > 0.0 && max.is_finite()) {
+        return Err(DepthFileError(format!(
+            "heatmap scale {max} must be positive and finite"
+        )));
+    }
+    let scale = ((height as u32) / 160).max(1);
+    let bar = 16 * scale;
+    let label = 4 * scale * 10;
+    let total = width as u32 + 3 * bar + label;
+    let mut image = image::RgbImage::from_pixel(total, height as u32, image::Rgb([30, 30, 30]));
+    for y in 0..height {
+        let j = height - 1 - y;
+        for i in 0..width {
+            let v = values[j * width + i];
+            if v.is_finite() {
+                image.put_pixel(i as u32, y as u32, image::Rgb(viridis(v / max)));
+            }
+        }
+    }
+    let (top, bottom) = (
+        8 * scale,
+        (height as u32).saturating_sub(8 * scale).max(8 * scale + 1),
+    );
+    let x0 = width as u32 + bar;
+    for y in top..bottom {
+        let t = 1.0 - (y - top) as Real / (bottom - 1 - top).max(1) as Real;
+        for x in x0..x0 + bar {
+            image.put_pixel(x, y, image::Rgb(viridis(t)));
+        }
+    }
+    let text_x = x0 + bar + 2 * scale;
+    for (t, y) in [(1.0, top), (0.5, (top + bottom) / 2), (0.0, bottom - 1)] {
+        let y = y
+            .saturating_sub(2 * scale)
+            .min(height as u32 - 5 * scale.min(height as u32 / 5));
+        let value = t * max;
+        let digits = if max >= 10.0 {
+            1
+        } else if max >= 1.0 {
+            2
+        } else {
+            3
+        };
+        draw_text(&mut image, &format!("{value:.digits$} {unit}"), text_x, y, scale);
+    }
+    encode_rgb(image)
+}
