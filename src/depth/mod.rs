@@ -211,6 +211,28 @@ pub enum DepthWarning {
     },
 }
 
+impl DepthEstimate {
+    /// The photo seen most nearly from the front (smallest [`Pose::view_angle_degrees`]) among
+    /// those without a [`DepthWarning::BadFit`]; `None` when every photo fits badly.
+    pub fn most_frontal_photo(&self) -> Option<usize> {
+        let bad = |name: &str| {
+            self.warnings
+                .iter()
+                .any(|w| matches!(w, DepthWarning::BadFit { photo, .. } if photo == name))
+        };
+        self.photos
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| !bad(&p.name))
+            .min_by(|a, b| {
+                a.1.pose
+                    .view_angle_degrees()
+                    .total_cmp(&b.1.pose.view_angle_degrees())
+            })
+            .map(|(k, _)| k)
+    }
+}
+
 impl PhotoFit {
     /// Where the photo sees a point of the canonical frame, in its pixels (`y` down).
     pub fn pixel(&self, point: &Point3<Real>) -> Point2<Real> {

@@ -6,7 +6,8 @@ use spade::{ConstrainedDelaunayTriangulation, Triangulation};
 
 use super::{FaceError, FaceSurface};
 use crate::Real;
-use crate::mesh::TriangleMesh;
+use crate::depth::PhotoFit;
+use crate::mesh::{TextureCoordinates, TriangleMesh};
 use crate::reference::polygon_contains;
 
 /// How the face region is triangulated.
@@ -42,6 +43,35 @@ fn segment_distance(p: Point2<Real>, a: Point2<Real>, b: Point2<Real>) -> Real {
     let ab = b - a;
     let t = ((p - a).dot(&ab) / ab.norm_squared().max(Real::MIN_POSITIVE)).clamp(0.0, 1.0);
     (p - (a + t * ab)).norm()
+}
+
+impl ClippedMesh {
+    /// The mesh textured by a photo: each vertex's texture coordinates are where the photo's
+    /// fitted pose sees it ([`PhotoFit::pixel`]), as fractions of the photo's `width` and
+    /// `height` with `v` up (OBJ's convention), clamped to the image. The mesh must still be in
+    /// the canonical frame the pose was fitted in (scale it afterwards; texture coordinates do
+    /// not change). Parts the photo sees from behind are textured too: choose the most frontal
+    /// photo ([`crate::depth::DepthEstimate::most_frontal_photo`]).
+    pub fn photo_texture(&self, fit: &PhotoFit, width: u32, height: u32) -> TriangleMesh {
+        let (w, h) = (Real::from(width.max(1)), Real::from(height.max(1)));
+        let uvs = self
+            .mesh
+            .positions()
+            .iter()
+            .map(|p| {
+                let q = fit.pixel(p);
+                Point2::new((q.x / w).clamp(0.0, 1.0), (1.0 - q.y / h).clamp(0.0, 1.0))
+            })
+            .collect();
+        let texture = TextureCoordinates {
+            uvs,
+            triangles: self.mesh.triangles().to_vec(),
+        };
+        self.mesh
+            .clone()
+            .with_texture(texture)
+            .expect("one finite coordinate per vertex, indexed like the triangles")
+    }
 }
 
 impl FaceSurface {

@@ -129,6 +129,27 @@ fn noise_free_views_give_the_depths_and_the_poses_back() {
         );
         // The objective never rises much, and ends below where it started.
         assert!(estimate.objective.last().unwrap() < &estimate.objective[0]);
+        // The fitted poses put the estimated points back where the photos saw them.
+        for (fit, photo) in estimate.photos.iter().zip(&scene.photos) {
+            let rms = (estimate
+                .structure
+                .iter()
+                .zip(&photo.points)
+                .map(|(p, seen)| (fit.pixel(p) - seen).norm_squared())
+                .sum::<Real>()
+                / 40.0)
+                .sqrt();
+            assert!(
+                (rms - fit.rms_pixels).abs() < 1e-6 * (1.0 + rms),
+                "{}: {rms} vs {}",
+                fit.name,
+                fit.rms_pixels
+            );
+            assert!(rms < 0.5, "{}: {rms} px", fit.name);
+        }
+        let frontal = estimate.most_frontal_photo().unwrap();
+        let angle = |k: usize| scene.poses[k].view_angle_degrees();
+        assert!((0..12).all(|k| angle(frontal) <= angle(k) + 1.0), "seed {seed}");
     }
 }
 

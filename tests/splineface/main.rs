@@ -11,6 +11,7 @@ mod bspline_serde;
 mod bspline_surface;
 mod common;
 mod depth;
+mod export;
 mod face;
 mod landmarks;
 mod mesh;
