@@ -35,3 +35,23 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     }
     result
 }
+
+/// Writes several files, each all or nothing ([`write_atomically`]), in order; if one fails,
+/// those already written by this call are removed, so a failed call leaves none of them (it
+/// does not restore files they replaced).
+///
+/// # Errors
+/// The path that failed and its I/O error.
+pub fn write_files_atomically(
+    files: &[(std::path::PathBuf, Vec<u8>)],
+) -> Result<(), (std::path::PathBuf, std::io::Error)> {
+    for (k, (path, bytes)) in files.iter().enumerate() {
+        if let Err(e) = write_atomically(path, bytes) {
+            for (done, _) in &files[..k] {
+                let _ = std::fs::remove_file(done);
+            }
+            return Err((path.clone(), e));
+        }
+    }
+    Ok(())
+}

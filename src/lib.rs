@@ -44,6 +44,7 @@
 
 pub mod align;
 pub mod bspline;
+pub mod compare;
 pub mod depth;
 pub mod export;
 pub mod face;

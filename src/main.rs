@@ -5,10 +5,15 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use nalgebra::{Affine3, Matrix4, Point3, Vector3};
 use splineface::bspline::BSplineSurface;
+use splineface::compare::CompareOptions;
 use splineface::landmarks::{read_landmarks_json, read_vertex_indices};
-use splineface::mesh::read_mesh;
+use splineface::mesh::{TriangleMesh, read_mesh};
 use splineface::reference::{ReferenceOptions, ReferenceScan, ReferenceSource, build_reference, fnv1a64};
+use splineface::render::{
+    DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, heatmap_png, shaded_png,
+};
 use splineface::structure::{IBUG_POINT_COUNT, from_ibug68};
 
 /// Smooth 3D faces from uncalibrated photos: B-spline surfaces, meshes and depth maps.
@@ -54,6 +59,56 @@ enum Command {
         #[arg(long, default_value = "")]
         note: String,
     },
+    /// Render a mesh's orthographic depth map: EXR (float32 `Z` with a coverage channel `A`)
+    /// or 16-bit PNG (0 = background), chosen by the output's extension.
+    RenderDepth {
+        /// The mesh: OBJ, PLY, glTF or GLB.
+        mesh: PathBuf,
+        /// The depth map to write: `.exr` or `.png`.
+        #[arg(long)]
+        out: PathBuf,
+        /// Pixels: `W` (square) or `WxH`.
+        #[arg(long, default_value = "512")]
+        size: String,
+        /// `front`, or `YAW,PITCH,ROLL` in degrees (the pose convention of `structure.json`).
+        #[arg(long, default_value = "front", allow_hyphen_values = true)]
+        view: String,
+        /// Also write a shaded preview (PNG).
+        #[arg(long)]
+        preview: Option<PathBuf>,
+    },
+    /// Compare a reconstruction with a ground-truth scan: align them, render both depth maps
+    /// and write the |Δz| heatmap, the depth maps and stats.json (the paper's measures and
+    /// millimetre errors) into a directory.
+    Compare {
+        /// The reconstructed face (OBJ, PLY, glTF or GLB).
+        reconstruction: PathBuf,
+        /// The ground-truth scan.
+        truth: PathBuf,
+        /// The directory to write into (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// The reconstruction's landmarks (JSON with 3D points, or 68 vertex indices); with
+        /// `--truth-landmarks`, the two are aligned by a similarity between their structures
+        /// instead of rigid ICP.
+        #[arg(long, requires = "truth_landmarks")]
+        reconstruction_landmarks: Option<PathBuf>,
+        /// The truth's landmarks (as above).
+        #[arg(long, requires = "reconstruction_landmarks")]
+        truth_landmarks: Option<PathBuf>,
+        /// Units of the reconstruction's coordinates: mm, cm or m.
+        #[arg(long, default_value = "mm")]
+        reconstruction_units: String,
+        /// Units of the truth's coordinates: mm, cm or m.
+        #[arg(long, default_value = "mm")]
+        truth_units: String,
+        /// Pixels along the depth maps' longer side.
+        #[arg(long, default_value_t = 512)]
+        size: usize,
+        /// The heatmap's scale top in mm (default: the 99th percentile of |Δz|).
+        #[arg(long)]
+        max: Option<f64>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -86,7 +141,235 @@ fn run(cli: Cli) -> Result<()> {
             };
             fit_reference(&meshes, &landmarks, &out, &options, &note)
         }
+        Command::RenderDepth {
+            mesh,
+            out,
+            size,
+            view,
+            preview,
+        } => render_depth(&mesh, &out, &size, &view, preview.as_deref()),
+        Command::Compare {
+            reconstruction,
+            truth,
+            out,
+            reconstruction_landmarks,
+            truth_landmarks,
+            reconstruction_units,
+            truth_units,
+            size,
+            max,
+        } => compare(&CompareArgs {
+            reconstruction,
+            truth,
+            out,
+            landmarks: reconstruction_landmarks.zip(truth_landmarks),
+            units: (reconstruction_units, truth_units),
+            options: CompareOptions {
+                size,
+                heatmap_max: max,
+                ..CompareOptions::default()
+            },
+        }),
     }
+}
+
+/// Parses `W` or `WxH`.
+fn parse_size(text: &str) -> Result<(usize, usize)> {
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .ok()
+            .filter(|&n| (1..=MAX_SIDE).contains(&n))
+    };
+    let size = match text.split_once(['x', 'X']) {
+        Some((w, h)) => parse(w).zip(parse(h)),
+        None => parse(text).map(|n| (n, n)),
+    };
+    size.with_context(|| format!("--size `{text}`: expected W or WxH, each between 1 and {MAX_SIDE}"))
+}
+
+fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: Option<&Path>) -> Result<()> {
+    let (width, height) = parse_size(size)?;
+    let view = View::parse(view).map_err(|e| anyhow::anyhow!("--view: {e}"))?;
+    let extension = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    let exr = match extension.as_deref() {
+        Some("exr") => true,
+        Some("png") => false,
+        _ => bail!("{}: the depth map must be .exr or .png", out.display()),
+    };
+    if let Some(p) = preview
+        && !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        bail!("{}: the preview must be .png", p.display());
+    }
+    let mesh = read_mesh(mesh_path)?;
+    let raster = frame_raster(mesh.positions().iter().copied(), &view, width, height, 0.02)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh_path.display()))?;
+    let start = std::time::Instant::now();
+    let map = DepthMap::render(&mesh, &view, &raster);
+    let elapsed = start.elapsed();
+    let encode_error = |e: splineface::render::DepthFileError| anyhow::anyhow!("{}: {e}", out.display());
+    let bytes = if exr {
+        encode_depth_exr(&map)
+    } else {
+        encode_depth_png(&map)
+    }
+    .map_err(encode_error)?;
+    let mut files = vec![(out.to_path_buf(), bytes)];
+    if let Some(p) = preview {
+        files.push((p.to_path_buf(), shaded_png(&map).map_err(encode_error)?));
+    }
+    write_files(&files)?;
+    let (lo, hi) = map.range().unwrap_or((0.0, 0.0));
+    println!("{}", out.display());
+    println!(
+        "  pixels      {width} × {height}, {:.4} units each",
+        raster.spacing
+    );
+    println!("  covered     {} pixels", map.covered());
+    println!("  heights     {lo:.3} to {hi:.3}");
+    println!(
+        "  render time {:.1} ms ({} triangles)",
+        elapsed.as_secs_f64() * 1e3,
+        mesh.triangles().len()
+    );
+    Ok(())
+}
+
+fn write_files(files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
+    splineface::io::write_files_atomically(files)
+        .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))
+}
+
+/// Millimetres per unit.
+fn units_to_mm(text: &str, flag: &str) -> Result<f64> {
+    match text.to_ascii_lowercase().as_str() {
+        "mm" => Ok(1.0),
+        "cm" => Ok(10.0),
+        "m" => Ok(1000.0),
+        _ => bail!("{flag} `{text}`: expected mm, cm or m"),
+    }
+}
+
+/// A 40-point 3D structure from a landmark file: JSON with 3D points (68 or 40), or 68 vertex
+/// indices into `mesh`.
+fn read_structure(path: &Path, mesh: &TriangleMesh) -> Result<Vec<Point3<f64>>> {
+    let is_json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+    if is_json {
+        return read_landmarks_json(path)?
+            .structure_3d()
+            .with_context(|| format!("{}: 3D landmarks are needed", path.display()));
+    }
+    let indices = read_vertex_indices(path, IBUG_POINT_COUNT, mesh.positions().len())?;
+    let points: Vec<_> = indices.iter().map(|&i| mesh.positions()[i]).collect();
+    from_ibug68(&points).with_context(|| format!("{}", path.display()))
+}
+
+struct CompareArgs {
+    reconstruction: PathBuf,
+    truth: PathBuf,
+    out: PathBuf,
+    landmarks: Option<(PathBuf, PathBuf)>,
+    units: (String, String),
+    options: CompareOptions,
+}
+
+fn compare(args: &CompareArgs) -> Result<()> {
+    let scale_a = units_to_mm(&args.units.0, "--reconstruction-units")?;
+    let scale_b = units_to_mm(&args.units.1, "--truth-units")?;
+    if args.out.exists() && !args.out.is_dir() {
+        bail!("{}: exists and is not a directory", args.out.display());
+    }
+    let rec = read_mesh(&args.reconstruction)?;
+    let truth = read_mesh(&args.truth)?;
+    let structures = match &args.landmarks {
+        Some((a, b)) => Some((read_structure(a, &rec)?, read_structure(b, &truth)?)),
+        None => None,
+    };
+    let to_mm = |s: f64| Affine3::from_matrix_unchecked(Matrix4::new_nonuniform_scaling(&Vector3::repeat(s)));
+    let rec = rec.transformed(&to_mm(scale_a));
+    let truth = truth.transformed(&to_mm(scale_b));
+    let structures = structures.map(|(a, b)| {
+        (
+            a.iter().map(|p| p * scale_a).collect::<Vec<_>>(),
+            b.iter().map(|p| p * scale_b).collect::<Vec<_>>(),
+        )
+    });
+    let start = std::time::Instant::now();
+    let result = splineface::compare::compare(
+        &rec,
+        &truth,
+        structures.as_ref().map(|(a, b)| (a.as_slice(), b.as_slice())),
+        &args.options,
+    )?;
+    let elapsed = start.elapsed();
+    let (w, h) = (
+        result.reconstruction.raster.width,
+        result.reconstruction.raster.height,
+    );
+    let encode =
+        |r: Result<Vec<u8>, splineface::render::DepthFileError>| r.map_err(|e| anyhow::anyhow!("{e}"));
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    let mut stats = serde_json::to_value(&result.stats)?;
+    stats["reconstruction"] = args.reconstruction.display().to_string().into();
+    stats["truth"] = args.truth.display().to_string().into();
+    stats["units"] = "mm".into();
+    stats["heatmap_max"] = result.heatmap_max.into();
+    let files = vec![
+        (
+            args.out.join("heatmap.png"),
+            encode(heatmap_png(&result.abs_dz, w, h, result.heatmap_max, "mm"))?,
+        ),
+        (
+            args.out.join("reconstruction-depth.exr"),
+            encode(encode_depth_exr(&result.reconstruction))?,
+        ),
+        (
+            args.out.join("truth-depth.exr"),
+            encode(encode_depth_exr(&result.truth))?,
+        ),
+        (
+            args.out.join("reconstruction.png"),
+            encode(shaded_png(&result.reconstruction))?,
+        ),
+        (args.out.join("truth.png"), encode(shaded_png(&result.truth))?),
+        (args.out.join("stats.json"), serde_json::to_vec_pretty(&stats)?),
+    ];
+    write_files(&files)?;
+    let s = &result.stats;
+    println!("{}", args.out.display());
+    println!(
+        "  alignment      {} (scale {:.4}, RMS {:.3} mm)",
+        s.alignment.method, s.alignment.scale, s.alignment.rms
+    );
+    println!(
+        "  pixels         {} compared, {:.3} mm each",
+        s.pixels_compared, s.pixel_size
+    );
+    println!(
+        "  |Δz| mm        mean {:.3}, median {:.3}, 90% {:.3}, max {:.3}",
+        s.depth_error.mean, s.depth_error.median, s.depth_error.p90, s.depth_error.max
+    );
+    println!(
+        "  to surface mm  mean {:.3}, median {:.3}, 90% {:.3}",
+        s.point_to_surface.mean, s.point_to_surface.median, s.point_to_surface.p90
+    );
+    println!(
+        "  paper          |Δz|/eye distance {:.4}, {:.2}% of depth{}{}",
+        s.paper.mean_abs_dz_over_eye_distance,
+        s.paper.percent_of_depth,
+        s.paper
+            .structure_ssim
+            .map_or(String::new(), |v| format!(", structure SSIM {v:.4}")),
+        s.paper
+            .depth_correlation
+            .map_or(String::new(), |v| format!(", depth r {v:.4}")),
+    );
+    println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
+    Ok(())
 }
 
 fn inspect(path: &Path) -> Result<()> {
@@ -138,18 +421,7 @@ fn fit_reference(
         let mesh = read_mesh(mesh_path)?;
         let bytes =
             std::fs::read(mesh_path).with_context(|| format!("cannot read {}", mesh_path.display()))?;
-        let is_json = landmark_path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
-        let structure = if is_json {
-            read_landmarks_json(landmark_path)?
-                .structure_3d()
-                .with_context(|| format!("{}: a reference needs 3D landmarks", landmark_path.display()))?
-        } else {
-            let indices = read_vertex_indices(landmark_path, IBUG_POINT_COUNT, mesh.positions().len())?;
-            let points: Vec<_> = indices.iter().map(|&i| mesh.positions()[i]).collect();
-            from_ibug68(&points).with_context(|| format!("{}", landmark_path.display()))?
-        };
+        let structure = read_structure(landmark_path, &mesh)?;
         scans.push(ReferenceScan {
             source: ReferenceSource {
                 mesh: file_name(mesh_path),

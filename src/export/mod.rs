@@ -122,19 +122,10 @@ pub fn write_obj(path: &Path, mesh: &TriangleMesh, texture: Option<&[u8]>) -> Re
         "# written by splineface\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {stem}.png\n"
     );
     let obj = crate::mesh::format_obj_with_material(mesh, Some((&format!("{stem}.mtl"), "face")));
-    let mut written: Vec<&Path> = Vec::new();
-    for (file, bytes) in [
-        (image.as_path(), png),
-        (mtl.as_path(), material.as_bytes()),
-        (path, obj.as_bytes()),
-    ] {
-        if let Err(e) = write_file(file, bytes) {
-            for done in written {
-                let _ = std::fs::remove_file(done);
-            }
-            return Err(e);
-        }
-        written.push(file);
-    }
-    Ok(())
+    crate::io::write_files_atomically(&[
+        (image, png.to_vec()),
+        (mtl, material.into_bytes()),
+        (path.to_path_buf(), obj.into_bytes()),
+    ])
+    .map_err(|(file, e)| error(&file, e))
 }

@@ -10,6 +10,7 @@ mod bspline_knots;
 mod bspline_serde;
 mod bspline_surface;
 mod common;
+mod compare;
 mod depth;
 mod export;
 mod face;

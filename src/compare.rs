@@ -1,0 +1,558 @@
+//! Comparing a reconstructed face with a ground-truth scan: alignment, depth maps of both, the
+//! per-pixel height error and the paper's measures (`../METHOD.md` §5) with millimetre errors.
+//!
+//! Both meshes are taken in millimetres. The reconstruction is moved onto the truth:
+//!
+//! * with both 40-point structures, by the least-squares **similarity** between them (Umeyama
+//!   1991; photos do not fix a face's absolute size, so the scale is part of the alignment and
+//!   reported);
+//! * without, by **rigid ICP** (point-to-point, the 10% worst pairs trimmed each step) from the
+//!   reconstruction's vertices to the truth's surface, starting from their centroids: the two
+//!   must then already share their orientation and units.
+//!
+//! The view is the truth's frontal frame when its structure is known (eye axis along `x`, origin
+//! between the eyes; see [`crate::structure::unify`]), else the truth's own frame seen from
+//! `+z`. Both meshes are rendered over the raster that frames the aligned reconstruction, and
+//! the pixels both cover are compared: `Δz = z_reconstruction − z_truth`.
+//!
+//! The paper's measures, as computed here:
+//! * `mean_abs_dz_over_eye_distance`: mean `|Δz|` divided by the truth's eye distance (the
+//!   paper's `|Δz|/50` in canonical units, 50 = eye distance); 63 mm when no structure is given;
+//! * `percent_of_depth`: mean of `100·|Δz|/z_truth` with `z_truth` measured from the deepest
+//!   compared truth pixel (the paper leaves the origin of depth open; this one makes it positive
+//!   and independent of the frame);
+//! * `structure_ssim` and `depth_correlation` (with both structures): the multi-substructure SSIM
+//!   of the aligned structures' edge lengths and the correlation of their 40 depths.
+
+use nalgebra::{Matrix3, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3};
+use parry3d::math::Vec3;
+use parry3d::query::PointQuery;
+use parry3d::shape::TriMesh;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::Real;
+use crate::mesh::TriangleMesh;
+use crate::reference::ReferenceFace;
+use crate::render::{DepthMap, View, frame_raster};
+use crate::structure::{self, LEFT_EYE_CENTRE, POINT_COUNT, RIGHT_EYE_CENTRE};
+
+/// How a comparison is run.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CompareOptions {
+    /// Pixels along the longer side of the depth maps.
+    pub size: usize,
+    /// The top of the heatmap's scale, mm; `None` for the 99th percentile of `|Δz|`.
+    pub heatmap_max: Option<Real>,
+    /// ICP iterations at most.
+    pub icp_iterations: usize,
+}
+
+impl Default for CompareOptions {
+    fn default() -> Self {
+        CompareOptions {
+            size: 512,
+            heatmap_max: None,
+            icp_iterations: 50,
+        }
+    }
+}
+
+/// What went wrong comparing.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CompareError {
+    /// A structure is unusable.
+    #[error("the {which} structure: {problem}")]
+    Structure {
+        /// `reconstruction` or `truth`.
+        which: &'static str,
+        /// Why.
+        problem: String,
+    },
+    /// The meshes do not overlap in the view.
+    #[error(
+        "the aligned meshes share no pixel of the depth map: are they of the same face, in the same units?"
+    )]
+    NoOverlap,
+    /// An option is out of range.
+    #[error("{0}")]
+    Option(String),
+    /// The truth mesh cannot be indexed for distance queries.
+    #[error("the truth mesh: {0}")]
+    Mesh(String),
+}
+
+/// Summary statistics of a set of non-negative errors, mm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ErrorStats {
+    /// How many.
+    pub count: usize,
+    /// Mean.
+    pub mean: Real,
+    /// Root mean square.
+    pub rms: Real,
+    /// Median.
+    pub median: Real,
+    /// 90th percentile.
+    pub p90: Real,
+    /// Largest.
+    pub max: Real,
+}
+
+impl ErrorStats {
+    /// The statistics of `values` (sorted in place); zeros when empty.
+    pub fn of(values: &mut [Real]) -> Self {
+        values.sort_unstable_by(Real::total_cmp);
+        let n = values.len();
+        if n == 0 {
+            return ErrorStats {
+                count: 0,
+                mean: 0.0,
+                rms: 0.0,
+                median: 0.0,
+                p90: 0.0,
+                max: 0.0,
+            };
+        }
+        let at = |q: Real| values[((n - 1) as Real * q).round() as usize];
+        ErrorStats {
+            count: n,
+            mean: values.iter().sum::<Real>() / n as Real,
+            rms: (values.iter().map(|v| v * v).sum::<Real>() / n as Real).sqrt(),
+            median: at(0.5),
+            p90: at(0.9),
+            max: values[n - 1],
+        }
+    }
+}
+
+/// The paper's measures (see the module documentation).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct PaperMeasures {
+    /// Mean `|Δz|` over the truth's eye distance.
+    pub mean_abs_dz_over_eye_distance: Real,
+    /// Mean `100·|Δz|/z_truth`, percent.
+    pub percent_of_depth: Real,
+    /// Multi-substructure SSIM of the structures' edge lengths, when both are given.
+    pub structure_ssim: Option<Real>,
+    /// Correlation of the 40 depths, when both structures are given.
+    pub depth_correlation: Option<Real>,
+}
+
+/// How the reconstruction was aligned.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Alignment {
+    /// `structures (similarity)` or `icp (rigid)`.
+    pub method: String,
+    /// The scale applied to the reconstruction (1 for ICP).
+    pub scale: Real,
+    /// RMS distance after alignment: between the structures, or ICP's trimmed pairs, mm.
+    pub rms: Real,
+    /// ICP iterations run (0 with structures).
+    pub iterations: usize,
+}
+
+/// The figures of a comparison, as written to `stats.json`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CompareStats {
+    /// The alignment.
+    pub alignment: Alignment,
+    /// The eye distance the paper's measure divides by, mm.
+    pub eye_distance: Real,
+    /// The depth maps' pixel size, mm.
+    pub pixel_size: Real,
+    /// Pixels both meshes cover.
+    pub pixels_compared: usize,
+    /// `|Δz|` over those pixels, mm.
+    pub depth_error: ErrorStats,
+    /// Signed mean of `Δz`, mm (positive: the reconstruction stands in front of the truth).
+    pub mean_signed_dz: Real,
+    /// Distances from the reconstruction's vertices to the truth's surface, mm.
+    pub point_to_surface: ErrorStats,
+    /// The paper's measures.
+    pub paper: PaperMeasures,
+}
+
+/// A finished comparison: the figures, both depth maps and the `|Δz|` map.
+#[derive(Debug, Clone)]
+pub struct Comparison {
+    /// The figures.
+    pub stats: CompareStats,
+    /// The reconstruction's depth map (truth's view frame).
+    pub reconstruction: DepthMap,
+    /// The truth's depth map.
+    pub truth: DepthMap,
+    /// `|Δz|` per pixel, `NaN` where either map is empty.
+    pub abs_dz: Vec<Real>,
+    /// The heatmap's scale top, mm.
+    pub heatmap_max: Real,
+    /// The reconstruction mesh, aligned and in the view frame.
+    pub aligned: TriangleMesh,
+}
+
+/// The least-squares similarity `s·R·x + t` taking `from` onto `to` (Umeyama 1991), with its
+/// RMS residual; `None` if `from` is degenerate (collinear or a point).
+pub fn fit_similarity(from: &[Point3<Real>], to: &[Point3<Real>]) -> Option<(Similarity3<Real>, Real)> {
+    let n = from.len() as Real;
+    if from.len() != to.len() || from.len() < 3 {
+        return None;
+    }
+    let ca = from.iter().map(|p| p.coords).sum::<Vector3<Real>>() / n;
+    let cb = to.iter().map(|p| p.coords).sum::<Vector3<Real>>() / n;
+    let mut covariance = Matrix3::zeros();
+    let mut variance = 0.0;
+    for (a, b) in from.iter().zip(to) {
+        let (x, y) = (a.coords - ca, b.coords - cb);
+        covariance += y * x.transpose();
+        variance += x.norm_squared();
+    }
+    covariance /= n;
+    variance /= n;
+    let svd = covariance.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let mut d = Matrix3::identity();
+    if (u * v_t).determinant() < 0.0 {
+        d[(2, 2)] = -1.0;
+    }
+    let sigma = svd.singular_values;
+    let mut sorted = sigma.as_slice().to_vec();
+    sorted.sort_by(Real::total_cmp);
+    if variance <= 0.0 || variance.is_nan() || sorted[1] <= 1e-12 * sorted[2] {
+        return None;
+    }
+    let rotation = Rotation3::from_matrix_unchecked(u * d * v_t);
+    let trace = (Matrix3::from_diagonal(&sigma) * d).trace();
+    let scale = trace / variance;
+    let translation = cb - scale * (rotation * ca);
+    let similarity = Similarity3::from_parts(
+        Translation3::from(translation),
+        UnitQuaternion::from_rotation_matrix(&rotation),
+        scale,
+    );
+    let rms = (from
+        .iter()
+        .zip(to)
+        .map(|(a, b)| (similarity * a - b).norm_squared())
+        .sum::<Real>()
+        / n)
+        .sqrt();
+    Some((similarity, rms))
+}
+
+fn check_structure(points: &[Point3<Real>], which: &'static str) -> Result<(), CompareError> {
+    let problem = if points.len() != POINT_COUNT {
+        format!("{} points, expected 40", points.len())
+    } else if points.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
+        "a point is not finite".to_owned()
+    } else if (points[LEFT_EYE_CENTRE] - points[RIGHT_EYE_CENTRE]).norm() == 0.0 {
+        "the eye centres coincide".to_owned()
+    } else {
+        return Ok(());
+    };
+    Err(CompareError::Structure { which, problem })
+}
+
+fn to_vec3(p: &Point3<Real>) -> Vec3 {
+    Vec3::new(p.x as f32, p.y as f32, p.z as f32)
+}
+
+/// The truth mesh indexed for closest-point queries (parry3d, `f32`).
+fn index_mesh(mesh: &TriangleMesh) -> Result<TriMesh, CompareError> {
+    let vertices: Vec<Vec3> = mesh.positions().iter().map(to_vec3).collect();
+    TriMesh::new(vertices, mesh.triangles().to_vec()).map_err(|e| CompareError::Mesh(e.to_string()))
+}
+
+fn closest(mesh: &TriMesh, p: &Point3<Real>) -> Point3<Real> {
+    let q = mesh.project_local_point(to_vec3(p), true).point;
+    Point3::new(Real::from(q.x), Real::from(q.y), Real::from(q.z))
+}
+
+/// The reconstruction's and the truth's 40-point structures.
+pub type Structures<'a> = (&'a [Point3<Real>], &'a [Point3<Real>]);
+
+/// An ICP pair: squared distance, moved point, closest point, normal there.
+type Pair = (Real, Point3<Real>, Point3<Real>, Vector3<Real>);
+
+/// The closest point on `mesh` and the unit normal of the triangle it lies on (the plane
+/// point-to-plane ICP measures against).
+fn closest_with_normal(
+    mesh: &TriMesh,
+    truth: &TriangleMesh,
+    p: &Point3<Real>,
+) -> Option<(Point3<Real>, Vector3<Real>)> {
+    let (projection, feature) = mesh.project_local_point_and_get_feature(to_vec3(p));
+    let q = Point3::new(
+        Real::from(projection.point.x),
+        Real::from(projection.point.y),
+        Real::from(projection.point.z),
+    );
+    let triangle = projection.subshape as usize;
+    let normal = match feature {
+        parry3d::shape::FeatureId::Unknown => None,
+        _ if triangle < truth.triangles().len() => {
+            let [a, b, c] = truth.triangle(triangle);
+            (b - a).cross(&(c - a)).try_normalize(0.0)
+        }
+        _ => (p - q).try_normalize(1e-12),
+    };
+    normal.map(|n| (q, n))
+}
+
+/// Rigid trimmed point-to-plane ICP (Chen & Medioni 1992) of `points` onto `mesh`, linearised
+/// in the rotation each step; the 10% most distant pairs are left out of each step. Returns
+/// the rigid map, the trimmed RMS distance and the iterations run.
+fn icp(
+    points: &[Point3<Real>],
+    mesh: &TriMesh,
+    truth: &TriangleMesh,
+    iterations: usize,
+) -> (Similarity3<Real>, Real, usize) {
+    let centroid =
+        |ps: &[Point3<Real>]| ps.iter().map(|p| p.coords).sum::<Vector3<Real>>() / ps.len() as Real;
+    let mut transform = Similarity3::from_parts(
+        Translation3::from(centroid(truth.positions()) - centroid(points)),
+        UnitQuaternion::identity(),
+        1.0,
+    );
+    // Subsample to at most 20,000 points: ICP's answer does not need more.
+    let step = points.len().div_ceil(20_000).max(1);
+    let sample: Vec<Point3<Real>> = points.iter().step_by(step).copied().collect();
+    let mut rms = Real::INFINITY;
+    let mut done = 0;
+    for iteration in 0..iterations {
+        done = iteration + 1;
+        let mut pairs: Vec<Pair> = sample
+            .par_iter()
+            .filter_map(|p| {
+                let p = transform * p;
+                closest_with_normal(mesh, truth, &p).map(|(q, n)| ((q - p).norm_squared(), p, q, n))
+            })
+            .collect();
+        if pairs.len() < 6 {
+            break;
+        }
+        pairs.sort_unstable_by(|a, b| a.0.total_cmp(&b.0));
+        pairs.truncate((pairs.len() * 9 / 10).max(6));
+        let new_rms = (pairs.iter().map(|x| x.0).sum::<Real>() / pairs.len() as Real).sqrt();
+        let mut normal = nalgebra::Matrix6::<Real>::zeros();
+        let mut rhs = nalgebra::Vector6::<Real>::zeros();
+        // About the pairs' centroid, for conditioning.
+        let c = pairs.iter().map(|x| x.1.coords).sum::<Vector3<Real>>() / pairs.len() as Real;
+        for (_, p, q, n) in &pairs {
+            let arm = p.coords - c;
+            let row = nalgebra::Vector6::new(arm.cross(n).x, arm.cross(n).y, arm.cross(n).z, n.x, n.y, n.z);
+            normal += row * row.transpose();
+            rhs += row * (q - p).dot(n);
+        }
+        let Some(x) = normal.cholesky().map(|ch| ch.solve(&rhs)) else {
+            break;
+        };
+        let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(x[0], x[1], x[2]));
+        let translation = Vector3::new(x[3], x[4], x[5]) + c - rotation * c;
+        transform = Similarity3::from_parts(Translation3::from(translation), rotation, 1.0) * transform;
+        let settled = x.norm() < 1e-7 || (rms - new_rms).abs() < 1e-7 * (1.0 + new_rms);
+        rms = new_rms;
+        if settled {
+            break;
+        }
+    }
+    (transform, rms, done)
+}
+
+/// Compares a reconstruction with the truth (see the module documentation). Both meshes and
+/// structures are in millimetres; structures are both given or both ignored.
+///
+/// # Errors
+/// [`CompareError::Structure`] for a bad structure, [`CompareError::Option`] for a size out of
+/// range, [`CompareError::NoOverlap`] when the aligned meshes do not overlap,
+/// [`CompareError::Mesh`] when the truth cannot be indexed.
+pub fn compare(
+    reconstruction: &TriangleMesh,
+    truth: &TriangleMesh,
+    structures: Option<Structures<'_>>,
+    options: &CompareOptions,
+) -> Result<Comparison, CompareError> {
+    if !(16..=crate::render::MAX_SIDE).contains(&options.size) {
+        return Err(CompareError::Option(format!(
+            "size {} must be between 16 and {}",
+            options.size,
+            crate::render::MAX_SIDE
+        )));
+    }
+    if let Some(max) = options.heatmap_max
+        && !(max > 0.0 && max.is_finite())
+    {
+        return Err(CompareError::Option(format!(
+            "heatmap maximum {max} must be positive"
+        )));
+    }
+    let indexed = index_mesh(truth)?;
+    // Into the truth's frame, then into the view frame.
+    let (alignment_map, alignment, view_map, eye_distance) = match structures {
+        Some((rec, tru)) => {
+            check_structure(rec, "reconstruction")?;
+            check_structure(tru, "truth")?;
+            let (map, rms) = fit_similarity(rec, tru).ok_or(CompareError::Structure {
+                which: "reconstruction",
+                problem: "its points are degenerate (collinear)".into(),
+            })?;
+            let (unifying, _) = structure::unify(tru).map_err(|e| CompareError::Structure {
+                which: "truth",
+                problem: e.to_string(),
+            })?;
+            // Keep the truth's millimetres: only turn and move it.
+            let view = Similarity3::from_isometry(unifying.isometry, 1.0);
+            let eyes = (tru[LEFT_EYE_CENTRE] - tru[RIGHT_EYE_CENTRE]).norm();
+            let alignment = Alignment {
+                method: "structures (similarity)".into(),
+                scale: map.scaling(),
+                rms,
+                iterations: 0,
+            };
+            (map, alignment, view, eyes)
+        }
+        None => {
+            let (map, rms, iterations) = icp(
+                reconstruction.positions(),
+                &indexed,
+                truth,
+                options.icp_iterations,
+            );
+            let alignment = Alignment {
+                method: "icp (rigid)".into(),
+                scale: 1.0,
+                rms,
+                iterations,
+            };
+            (map, alignment, Similarity3::identity(), 63.0)
+        }
+    };
+    let to_view = |p: &Point3<Real>| view_map * p;
+    let aligned_points: Vec<Point3<Real>> = reconstruction
+        .positions()
+        .iter()
+        .map(|p| alignment_map * p)
+        .collect();
+    let aligned = TriangleMesh::new(
+        aligned_points.iter().map(to_view).collect(),
+        reconstruction.triangles().to_vec(),
+    )
+    .map_err(|e| CompareError::Mesh(e.to_string()))?;
+    let truth_view = truth.transformed(&nalgebra::Affine3::from_matrix_unchecked(
+        view_map.to_homogeneous(),
+    ));
+
+    let front = View::front();
+    let mut lo = aligned.positions()[0];
+    let mut hi = lo;
+    for p in aligned.positions() {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let (w, h) = if hi.x - lo.x >= hi.y - lo.y {
+        (
+            options.size,
+            (((hi.y - lo.y) / (hi.x - lo.x).max(1e-300)) * options.size as Real).ceil() as usize,
+        )
+    } else {
+        (
+            (((hi.x - lo.x) / (hi.y - lo.y)) * options.size as Real).ceil() as usize,
+            options.size,
+        )
+    };
+    let raster = frame_raster(
+        aligned.positions().iter().copied(),
+        &front,
+        w.max(1),
+        h.max(1),
+        0.02,
+    )
+    .map_err(CompareError::Option)?;
+    let rec_map = DepthMap::render(&aligned, &front, &raster);
+    let truth_map = DepthMap::render(&truth_view, &front, &raster);
+
+    let abs_dz: Vec<Real> = rec_map
+        .heights
+        .iter()
+        .zip(&truth_map.heights)
+        .map(|(a, b)| (a - b).abs())
+        .collect();
+    let both: Vec<usize> = (0..abs_dz.len()).filter(|&k| abs_dz[k].is_finite()).collect();
+    if both.is_empty() {
+        return Err(CompareError::NoOverlap);
+    }
+    let deepest = both
+        .iter()
+        .map(|&k| truth_map.heights[k])
+        .fold(Real::INFINITY, Real::min);
+    let mut percent = 0.0;
+    let mut counted = 0usize;
+    let mut signed = 0.0;
+    for &k in &both {
+        let z = truth_map.heights[k] - deepest;
+        signed += rec_map.heights[k] - truth_map.heights[k];
+        if z > 0.0 {
+            percent += 100.0 * abs_dz[k] / z;
+            counted += 1;
+        }
+    }
+    let mut errors: Vec<Real> = both.iter().map(|&k| abs_dz[k]).collect();
+    let depth_error = ErrorStats::of(&mut errors);
+    let heatmap_max = options
+        .heatmap_max
+        .unwrap_or_else(|| errors[((errors.len() - 1) as Real * 0.99) as usize].max(1e-6));
+
+    let mut distances: Vec<Real> = aligned_points
+        .par_iter()
+        .map(|p| (closest(&indexed, p) - p).norm())
+        .collect();
+    let point_to_surface = ErrorStats::of(&mut distances);
+
+    let (structure_ssim, depth_correlation) = match structures {
+        Some((rec, tru)) => {
+            let reference = ReferenceFace::embedded();
+            let edges = reference.edges();
+            let groups = structure::substructures(edges);
+            let a: Vec<Point3<Real>> = rec.iter().map(|p| to_view(&(alignment_map * p))).collect();
+            let b: Vec<Point3<Real>> = tru.iter().map(&to_view).collect();
+            let ssim = structure::multi_substructure_similarity(
+                &structure::edge_lengths(&b, edges),
+                &structure::edge_lengths(&a, edges),
+                &groups,
+            );
+            let za: Vec<Real> = a.iter().map(|p| p.z).collect();
+            let zb: Vec<Real> = b.iter().map(|p| p.z).collect();
+            (Some(ssim), structure::correlation(&za, &zb))
+        }
+        None => (None, None),
+    };
+
+    let stats = CompareStats {
+        alignment,
+        eye_distance,
+        pixel_size: raster.spacing,
+        pixels_compared: both.len(),
+        depth_error,
+        mean_signed_dz: signed / both.len() as Real,
+        point_to_surface,
+        paper: PaperMeasures {
+            mean_abs_dz_over_eye_distance: depth_error.mean / eye_distance,
+            percent_of_depth: if counted > 0 {
+                percent / counted as Real
+            } else {
+                0.0
+            },
+            structure_ssim,
+            depth_correlation,
+        },
+    };
+    Ok(Comparison {
+        stats,
+        reconstruction: rec_map,
+        truth: truth_map,
+        abs_dz,
+        heatmap_max,
+        aligned,
+    })
+}
