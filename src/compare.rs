@@ -25,14 +25,10 @@
 //!   of the aligned structures' edge lengths and the correlation of their 40 depths.
 
 use nalgebra::{Matrix3, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3};
-use parry3d::math::Vec3;
-use parry3d::query::PointQuery;
-use parry3d::shape::TriMesh;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::Real;
-use crate::mesh::TriangleMesh;
+use crate::mesh::{ClosestPoints, TriangleMesh};
 use crate::reference::ReferenceFace;
 use crate::render::{DepthMap, View, frame_raster};
 use crate::structure::{self, LEFT_EYE_CENTRE, POINT_COUNT, RIGHT_EYE_CENTRE};
@@ -78,8 +74,8 @@ pub enum CompareError {
     /// An option is out of range.
     #[error("{0}")]
     Option(String),
-    /// The truth mesh cannot be indexed for distance queries.
-    #[error("the truth mesh: {0}")]
+    /// A mesh could not be built (should not happen for valid input).
+    #[error("the aligned mesh: {0}")]
     Mesh(String),
 }
 
@@ -253,58 +249,18 @@ fn check_structure(points: &[Point3<Real>], which: &'static str) -> Result<(), C
     Err(CompareError::Structure { which, problem })
 }
 
-fn to_vec3(p: &Point3<Real>) -> Vec3 {
-    Vec3::new(p.x as f32, p.y as f32, p.z as f32)
-}
-
-/// The truth mesh indexed for closest-point queries (parry3d, `f32`).
-fn index_mesh(mesh: &TriangleMesh) -> Result<TriMesh, CompareError> {
-    let vertices: Vec<Vec3> = mesh.positions().iter().map(to_vec3).collect();
-    TriMesh::new(vertices, mesh.triangles().to_vec()).map_err(|e| CompareError::Mesh(e.to_string()))
-}
-
-fn closest(mesh: &TriMesh, p: &Point3<Real>) -> Point3<Real> {
-    let q = mesh.project_local_point(to_vec3(p), true).point;
-    Point3::new(Real::from(q.x), Real::from(q.y), Real::from(q.z))
-}
-
 /// The reconstruction's and the truth's 40-point structures.
 pub type Structures<'a> = (&'a [Point3<Real>], &'a [Point3<Real>]);
 
 /// An ICP pair: squared distance, moved point, closest point, normal there.
 type Pair = (Real, Point3<Real>, Point3<Real>, Vector3<Real>);
 
-/// The closest point on `mesh` and the unit normal of the triangle it lies on (the plane
-/// point-to-plane ICP measures against).
-fn closest_with_normal(
-    mesh: &TriMesh,
-    truth: &TriangleMesh,
-    p: &Point3<Real>,
-) -> Option<(Point3<Real>, Vector3<Real>)> {
-    let (projection, feature) = mesh.project_local_point_and_get_feature(to_vec3(p));
-    let q = Point3::new(
-        Real::from(projection.point.x),
-        Real::from(projection.point.y),
-        Real::from(projection.point.z),
-    );
-    let triangle = projection.subshape as usize;
-    let normal = match feature {
-        parry3d::shape::FeatureId::Unknown => None,
-        _ if triangle < truth.triangles().len() => {
-            let [a, b, c] = truth.triangle(triangle);
-            (b - a).cross(&(c - a)).try_normalize(0.0)
-        }
-        _ => (p - q).try_normalize(1e-12),
-    };
-    normal.map(|n| (q, n))
-}
-
-/// Rigid trimmed point-to-plane ICP (Chen & Medioni 1992) of `points` onto `mesh`, linearised
+/// Rigid trimmed point-to-plane ICP (Chen & Medioni 1992) of `points` onto the truth, linearised
 /// in the rotation each step; the 10% most distant pairs are left out of each step. Returns
 /// the rigid map, the trimmed RMS distance and the iterations run.
 fn icp(
     points: &[Point3<Real>],
-    mesh: &TriMesh,
+    index: &ClosestPoints,
     truth: &TriangleMesh,
     iterations: usize,
 ) -> (Similarity3<Real>, Real, usize) {
@@ -322,11 +278,15 @@ fn icp(
     let mut done = 0;
     for iteration in 0..iterations {
         done = iteration + 1;
-        let mut pairs: Vec<Pair> = sample
-            .par_iter()
-            .filter_map(|p| {
-                let p = transform * p;
-                closest_with_normal(mesh, truth, &p).map(|(q, n)| ((q - p).norm_squared(), p, q, n))
+        let moved: Vec<Point3<Real>> = sample.iter().map(|p| transform * p).collect();
+        let mut pairs: Vec<Pair> = moved
+            .iter()
+            .zip(index.closest_many(&moved))
+            .filter_map(|(p, found)| {
+                // Measured against the plane of the triangle the closest point lies on.
+                let [a, b, c] = truth.triangle(found.triangle);
+                let n = (b - a).cross(&(c - a)).try_normalize(0.0)?;
+                Some((found.distance * found.distance, *p, found.point, n))
             })
             .collect();
         if pairs.len() < 6 {
@@ -387,7 +347,7 @@ pub fn compare(
             "heatmap maximum {max} must be positive"
         )));
     }
-    let indexed = index_mesh(truth)?;
+    let indexed = ClosestPoints::new(truth);
     // Into the truth's frame, then into the view frame.
     let (alignment_map, alignment, view_map, eye_distance) = match structures {
         Some((rec, tru)) => {
@@ -503,9 +463,10 @@ pub fn compare(
         .heatmap_max
         .unwrap_or_else(|| errors[((errors.len() - 1) as Real * 0.99) as usize].max(1e-6));
 
-    let mut distances: Vec<Real> = aligned_points
-        .par_iter()
-        .map(|p| (closest(&indexed, p) - p).norm())
+    let mut distances: Vec<Real> = indexed
+        .closest_many(&aligned_points)
+        .iter()
+        .map(|c| c.distance)
         .collect();
     let point_to_surface = ErrorStats::of(&mut distances);
 

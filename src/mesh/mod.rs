@@ -20,11 +20,13 @@ use nalgebra::{Affine3, Point2, Point3, Vector3};
 
 use crate::Real;
 
+mod closest;
 mod gltf;
 mod obj;
 mod ply;
 mod raster;
 
+pub use closest::{Closest, ClosestPoints, closest_on_triangle};
 pub(crate) use obj::format_obj_with_material;
 pub use obj::{format_obj, parse_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};

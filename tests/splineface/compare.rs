@@ -66,7 +66,7 @@ fn the_same_face_moved_compares_as_identical() {
         stats.alignment.scale
     );
     assert!(stats.depth_error.max < 1e-6, "{:?}", stats.depth_error);
-    assert!(stats.point_to_surface.max < 1e-3, "{:?}", stats.point_to_surface);
+    assert!(stats.point_to_surface.max < 1e-9, "{:?}", stats.point_to_surface);
     assert!((stats.paper.structure_ssim.unwrap() - 1.0).abs() < 1e-9);
     assert!((stats.paper.depth_correlation.unwrap() - 1.0).abs() < 1e-9);
     assert!(stats.pixels_compared > 100_000);

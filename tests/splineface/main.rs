@@ -16,6 +16,7 @@ mod export;
 mod face;
 mod landmarks;
 mod mesh;
+mod mesh_closest;
 mod reference;
 mod render;
 mod structure;

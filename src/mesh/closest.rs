@@ -1,0 +1,347 @@
+//! Closest points on a triangle mesh: a bounding-volume hierarchy over the triangles with a
+//! nearest-first, pruned descent.
+
+use nalgebra::{Point3, Vector3};
+
+use super::TriangleMesh;
+use crate::Real;
+
+/// Triangles per leaf at most.
+const LEAF: usize = 4;
+
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    lo: [Real; 3],
+    hi: [Real; 3],
+    /// Leaf: first triangle (in `order`); inner: index of the right child (the left child is
+    /// the next node).
+    start: u32,
+    /// Leaf: triangle count (≥ 1); inner: 0.
+    count: u32,
+}
+
+/// A mesh indexed for closest-point queries ([`ClosestPoints::closest`]).
+///
+/// The hierarchy splits triangles at the median of their centroids along the box's longest
+/// side down to leaves of at most four. A query descends nearer child first, skips boxes
+/// farther than the best triangle so far, and skips triangles whose plane is farther.
+/// Everything is `f64`: answers are exact to rounding.
+#[derive(Debug, Clone)]
+pub struct ClosestPoints {
+    nodes: Vec<Node>,
+    /// Triangle corners in leaf order.
+    corners: Vec<[Point3<Real>; 3]>,
+    /// Each triangle's unit normal (zero if degenerate), in leaf order: the distance to its
+    /// plane bounds the distance to it from below.
+    normals: Vec<Vector3<Real>>,
+    /// The mesh's triangle index of each entry of `corners`.
+    order: Vec<u32>,
+    /// The entry of `corners` of each of the mesh's triangles.
+    slot: Vec<u32>,
+}
+
+/// The answer to a closest-point query.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Closest {
+    /// The closest point on the mesh.
+    pub point: Point3<Real>,
+    /// Its distance from the query point.
+    pub distance: Real,
+    /// The triangle it lies on (the mesh's index).
+    pub triangle: usize,
+}
+
+/// The point of triangle `abc` closest to `p` (Ericson, *Real-Time Collision Detection*, 5.1.5).
+pub fn closest_on_triangle(
+    p: &Point3<Real>,
+    a: &Point3<Real>,
+    b: &Point3<Real>,
+    c: &Point3<Real>,
+) -> Point3<Real> {
+    let ab = b - a;
+    let ac = c - a;
+    let ap = p - a;
+    let d1 = ab.dot(&ap);
+    let d2 = ac.dot(&ap);
+    if d1 <= 0.0 && d2 <= 0.0 {
+        return *a;
+    }
+    let bp = p - b;
+    let d3 = ab.dot(&bp);
+    let d4 = ac.dot(&bp);
+    if d3 >= 0.0 && d4 <= d3 {
+        return *b;
+    }
+    let vc = d1 * d4 - d3 * d2;
+    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
+        let v = d1 / (d1 - d3);
+        return a + ab * v;
+    }
+    let cp = p - c;
+    let d5 = ab.dot(&cp);
+    let d6 = ac.dot(&cp);
+    if d6 >= 0.0 && d5 <= d6 {
+        return *c;
+    }
+    let vb = d5 * d2 - d1 * d6;
+    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
+        let w = d2 / (d2 - d6);
+        return a + ac * w;
+    }
+    let va = d3 * d6 - d5 * d4;
+    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
+        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
+        return b + (c - b) * w;
+    }
+    let denominator = va + vb + vc;
+    if denominator == 0.0 || !denominator.is_finite() {
+        // A degenerate triangle: the nearest of its edges' closest points.
+        let segment = |s: &Point3<Real>, t: &Point3<Real>| {
+            let d = t - s;
+            let u = ((p - s).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
+            if u.is_finite() { s + d * u } else { *s }
+        };
+        return [segment(a, b), segment(b, c), segment(c, a)]
+            .into_iter()
+            .min_by(|x, y| (x - p).norm_squared().total_cmp(&(y - p).norm_squared()))
+            .expect("three candidates");
+    }
+    let v = vb / denominator;
+    let w = vc / denominator;
+    a + ab * v + ac * w
+}
+
+impl ClosestPoints {
+    /// Indexes the mesh's triangles.
+    pub fn new(mesh: &TriangleMesh) -> Self {
+        let triangles: Vec<[Point3<Real>; 3]> =
+            (0..mesh.triangles().len()).map(|k| mesh.triangle(k)).collect();
+        let centroids: Vec<Vector3<Real>> = triangles
+            .iter()
+            .map(|t| (t[0].coords + t[1].coords + t[2].coords) / 3.0)
+            .collect();
+        let mut order: Vec<u32> = (0..triangles.len() as u32).collect();
+        let mut nodes = Vec::with_capacity(2 * triangles.len() / LEAF + 1);
+        build(&mut nodes, &mut order, 0, &triangles, &centroids);
+        let corners = order.iter().map(|&k| triangles[k as usize]).collect();
+        let normals = order
+            .iter()
+            .map(|&k| {
+                let [a, b, c] = triangles[k as usize];
+                (b - a)
+                    .cross(&(c - a))
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::zeros)
+            })
+            .collect();
+        let mut slot = vec![0; order.len()];
+        for (k, &t) in order.iter().enumerate() {
+            slot[t as usize] = k as u32;
+        }
+        ClosestPoints {
+            nodes,
+            corners,
+            normals,
+            order,
+            slot,
+        }
+    }
+
+    /// The closest point of the mesh to `p`.
+    pub fn closest(&self, p: &Point3<Real>) -> Closest {
+        self.closest_from(p, None, &mut Vec::with_capacity(64))
+    }
+
+    /// The closest points of the mesh to many points, in their order.
+    ///
+    /// Queries run in Morton (Z-order) order of the points, in parallel chunks, each starting
+    /// its search from the triangle that answered the previous query: neighbouring queries then
+    /// touch the same parts of the hierarchy, which stay in cache, and the previous answer
+    /// bounds the search from the start. On 200k triangles and random near-surface points this
+    /// is many times faster than querying in random order, where nearly every node visited
+    /// misses the cache (see `benches/render.rs`).
+    pub fn closest_many(&self, points: &[Point3<Real>]) -> Vec<Closest> {
+        use rayon::prelude::*;
+        let order = morton_order(points);
+        let mut answers = vec![
+            Closest {
+                point: Point3::origin(),
+                distance: 0.0,
+                triangle: 0,
+            };
+            points.len()
+        ];
+        let found: Vec<(u32, Closest)> = order
+            .par_chunks(4096)
+            .flat_map_iter(|chunk| {
+                let mut stack = Vec::with_capacity(64);
+                let mut previous = None;
+                chunk
+                    .iter()
+                    .map(|&k| {
+                        let answer = self.closest_from(&points[k as usize], previous, &mut stack);
+                        previous = Some(answer.triangle);
+                        (k, answer)
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        for (k, answer) in found {
+            answers[k as usize] = answer;
+        }
+        answers
+    }
+
+    fn closest_from(&self, p: &Point3<Real>, hint: Option<usize>, stack: &mut Vec<(u32, Real)>) -> Closest {
+        let mut best = Closest {
+            point: *p,
+            distance: Real::INFINITY,
+            triangle: 0,
+        };
+        let mut best_squared = Real::INFINITY;
+        if let Some(slot) = hint.and_then(|t| self.slot.get(t)) {
+            let [a, b, c] = &self.corners[*slot as usize];
+            let q = closest_on_triangle(p, a, b, c);
+            best_squared = (q - p).norm_squared();
+            best.point = q;
+            best.triangle = self.order[*slot as usize] as usize;
+        }
+        stack.clear();
+        stack.push((0, box_distance_squared(&self.nodes[0], p)));
+        while let Some((index, distance)) = stack.pop() {
+            if distance >= best_squared {
+                continue;
+            }
+            let node = &self.nodes[index as usize];
+            if node.count > 0 {
+                for k in node.start as usize..(node.start + node.count) as usize {
+                    let [a, b, c] = &self.corners[k];
+                    let plane = self.normals[k].dot(&(p - a));
+                    if plane * plane >= best_squared {
+                        continue;
+                    }
+                    let q = closest_on_triangle(p, a, b, c);
+                    let d = (q - p).norm_squared();
+                    if d < best_squared {
+                        best_squared = d;
+                        best.point = q;
+                        best.triangle = self.order[k] as usize;
+                    }
+                }
+                continue;
+            }
+            let (left, right) = (index + 1, node.start);
+            let dl = box_distance_squared(&self.nodes[left as usize], p);
+            let dr = box_distance_squared(&self.nodes[right as usize], p);
+            // Push the farther child first so the nearer is searched first.
+            if dl <= dr {
+                stack.push((right, dr));
+                stack.push((left, dl));
+            } else {
+                stack.push((left, dl));
+                stack.push((right, dr));
+            }
+        }
+        best.distance = best_squared.sqrt();
+        best
+    }
+}
+
+/// Spreads the low 21 bits of `x` to every third bit.
+fn spread(x: u64) -> u64 {
+    let mut x = x & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    (x | x << 2) & 0x1249_2492_4924_9249
+}
+
+/// The indices of `points` sorted by their Morton code over the points' bounding box.
+fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
+    let mut lo = Vector3::repeat(Real::INFINITY);
+    let mut hi = Vector3::repeat(Real::NEG_INFINITY);
+    for p in points.iter().filter(|p| p.iter().all(|c| c.is_finite())) {
+        lo = lo.inf(&p.coords);
+        hi = hi.sup(&p.coords);
+    }
+    let scale = (hi - lo).map(|e| if e > 0.0 { 2_097_151.0 / e } else { 0.0 });
+    let mut keyed: Vec<(u64, u32)> = points
+        .iter()
+        .enumerate()
+        .map(|(k, p)| {
+            let cell = |c: usize| {
+                let x = ((p[c] - lo[c]) * scale[c]).clamp(0.0, 2_097_151.0);
+                if x.is_finite() { x as u64 } else { 0 }
+            };
+            (
+                spread(cell(0)) | spread(cell(1)) << 1 | spread(cell(2)) << 2,
+                k as u32,
+            )
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, k)| k).collect()
+}
+
+fn box_distance_squared(node: &Node, p: &Point3<Real>) -> Real {
+    let mut d = 0.0;
+    for c in 0..3 {
+        let (lo, hi) = (node.lo[c], node.hi[c]);
+        let excess = if p[c] < lo {
+            lo - p[c]
+        } else if p[c] > hi {
+            p[c] - hi
+        } else {
+            0.0
+        };
+        d += excess * excess;
+    }
+    d
+}
+
+/// Builds the subtree over `order[..]` (whose first entry is triangle number `offset` in leaf
+/// order), returning its node index.
+fn build(
+    nodes: &mut Vec<Node>,
+    order: &mut [u32],
+    offset: usize,
+    triangles: &[[Point3<Real>; 3]],
+    centroids: &[Vector3<Real>],
+) -> u32 {
+    let mut lo = [Real::INFINITY; 3];
+    let mut hi = [Real::NEG_INFINITY; 3];
+    let mut clo = Vector3::repeat(Real::INFINITY);
+    let mut chi = Vector3::repeat(Real::NEG_INFINITY);
+    for &k in order.iter() {
+        for p in &triangles[k as usize] {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        clo = clo.inf(&centroids[k as usize]);
+        chi = chi.sup(&centroids[k as usize]);
+    }
+    let index = nodes.len() as u32;
+    nodes.push(Node {
+        lo,
+        hi,
+        start: offset as u32,
+        count: order.len() as u32,
+    });
+    if order.len() <= LEAF {
+        return index;
+    }
+    let axis = (chi - clo).imax();
+    let middle = order.len() / 2;
+    order.select_nth_unstable_by(middle, |&a, &b| {
+        centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+    });
+    let (left, right) = order.split_at_mut(middle);
+    build(nodes, left, offset, triangles, centroids);
+    let right_index = build(nodes, right, offset + middle, triangles, centroids);
+    nodes[index as usize].start = right_index;
+    nodes[index as usize].count = 0;
+    index
+}
