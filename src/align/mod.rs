@@ -6,15 +6,20 @@
 //! * [`procrustes_frontal`]: points only. Generalised affine Procrustes over the photos' point
 //!   sets and their mirror images, in closed form (see its documentation). It is the fallback
 //!   when there are no images, and the baseline the image-based path is measured against.
-//! * RASL (the image-based path, Peng, Ganesh, Wright, Xu & Ma): low-rank batch alignment of the
-//!   photos themselves; it produces the same [`FrontalStructure`], with [`FrontalMethod::Rasl`].
+//! * [`rasl_frontal`] (the image-based path, Peng, Ganesh, Wright, Xu & Ma): low-rank batch
+//!   alignment of the photos themselves; it produces the same [`FrontalStructure`], with
+//!   [`FrontalMethod::Rasl`].
 //!
 //! Both take [`PhotoPoints`]: a photo's 40 structure points in image pixels (`v` down), named
 //! so that errors can say which photo is wrong.
 
+mod image;
 mod procrustes;
+mod rasl;
 
+pub use image::{GreyImage, MAX_PIXELS, MIN_SIDE, PhotoError, PhotoProblem};
 pub use procrustes::procrustes_frontal;
+pub use rasl::{Dropped, RaslOptions, RaslPhoto, RaslResult, rasl_frontal, singular_value_threshold};
 
 use nalgebra::{Matrix2x3, Point2, Vector2};
 

@@ -17,6 +17,7 @@ mod face;
 mod landmarks;
 mod mesh;
 mod mesh_closest;
+mod rasl;
 mod reference;
 mod render;
 mod structure;

@@ -1,0 +1,231 @@
+//! Greyscale photos for RASL: reading, validation, mirroring, bilinear sampling and gradients.
+
+use std::path::{Path, PathBuf};
+
+use crate::Real;
+
+/// The smallest photo side RASL accepts, in pixels.
+pub const MIN_SIDE: usize = 32;
+
+/// The largest photo RASL reads, in pixels (a 100-megapixel photo is 400 MB as `f32`).
+pub const MAX_PIXELS: usize = 100_000_000;
+
+/// A greyscale image, intensities in `[0, 1]`, row-major from the top row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GreyImage {
+    width: usize,
+    height: usize,
+    data: Vec<f32>,
+}
+
+/// What is wrong with a photo.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PhotoProblem {
+    /// The file could not be read or decoded.
+    #[error("cannot read the image: {0}")]
+    Unreadable(String),
+    /// No pixels.
+    #[error("the image is empty")]
+    Empty,
+    /// Too small to hold a face.
+    #[error("the image is {width}×{height} pixels: too small (each side must be at least 32)")]
+    Tiny {
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+    },
+    /// Too large to read.
+    #[error("the image is {width}×{height} pixels: larger than 100 megapixels")]
+    Huge {
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+    },
+    /// Every pixel has the same intensity: nothing to align.
+    #[error("the image has no contrast (every pixel is the same grey)")]
+    Flat,
+    /// A landmark lies outside the image.
+    #[error("point {point} at ({x:.1}, {y:.1}) lies outside the {width}×{height} image")]
+    PointOutside {
+        /// The structure point.
+        point: usize,
+        /// Its position.
+        x: Real,
+        /// Its position.
+        y: Real,
+        /// The image width.
+        width: usize,
+        /// The image height.
+        height: usize,
+    },
+    /// The data does not match the size.
+    #[error("{got} intensities for a {width}×{height} image")]
+    SizeMismatch {
+        /// Intensities given.
+        got: usize,
+        /// Width.
+        width: usize,
+        /// Height.
+        height: usize,
+    },
+    /// An intensity is NaN or infinite.
+    #[error("intensity {0} is not finite")]
+    NonFinite(usize),
+}
+
+/// A photo file that could not be used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{}: {problem}", file.display())]
+pub struct PhotoError {
+    /// The file.
+    pub file: PathBuf,
+    /// What is wrong.
+    pub problem: PhotoProblem,
+}
+
+impl GreyImage {
+    /// An image from intensities (row-major from the top), checked: non-empty, at least
+    /// 32 pixels a side, at most 100 megapixels, finite, not flat.
+    ///
+    /// # Errors
+    /// The [`PhotoProblem`].
+    pub fn new(width: usize, height: usize, data: Vec<f32>) -> Result<Self, PhotoProblem> {
+        if width == 0 || height == 0 {
+            return Err(PhotoProblem::Empty);
+        }
+        if width.saturating_mul(height) > MAX_PIXELS {
+            return Err(PhotoProblem::Huge { width, height });
+        }
+        if data.len() != width * height {
+            return Err(PhotoProblem::SizeMismatch {
+                got: data.len(),
+                width,
+                height,
+            });
+        }
+        if width < MIN_SIDE || height < MIN_SIDE {
+            return Err(PhotoProblem::Tiny { width, height });
+        }
+        if let Some(k) = data.iter().position(|v| !v.is_finite()) {
+            return Err(PhotoProblem::NonFinite(k));
+        }
+        let (lo, hi) = data
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                (lo.min(v), hi.max(v))
+            });
+        if hi - lo < 1.0 / 512.0 {
+            return Err(PhotoProblem::Flat);
+        }
+        Ok(GreyImage { width, height, data })
+    }
+
+    /// The luma of a decoded image (Rec. 709 weights, as the `image` crate computes it).
+    ///
+    /// # Errors
+    /// As [`GreyImage::new`].
+    pub fn from_dynamic(image: &image::DynamicImage) -> Result<Self, PhotoProblem> {
+        let (width, height) = (image.width() as usize, image.height() as usize);
+        if width.saturating_mul(height) > MAX_PIXELS {
+            return Err(PhotoProblem::Huge { width, height });
+        }
+        let luma = image.to_luma32f();
+        GreyImage::new(width, height, luma.into_raw())
+    }
+
+    /// Reads a photo (JPEG, PNG, BMP, TIFF or WebP, recognised by content) as grey.
+    ///
+    /// # Errors
+    /// A [`PhotoError`] naming the file: unreadable, undecodable, or failing
+    /// [`GreyImage::new`]'s checks. Headers announcing more than 100 megapixels are refused
+    /// before decoding.
+    pub fn read(path: &Path) -> Result<Self, PhotoError> {
+        let error = |problem| PhotoError {
+            file: path.to_path_buf(),
+            problem,
+        };
+        let reader = image::ImageReader::open(path)
+            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?
+            .with_guessed_format()
+            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
+        let mut reader = reader;
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(2 * 1024 * 1024 * 1024);
+        reader.limits(limits);
+        let (width, height) = reader
+            .into_dimensions()
+            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
+        let (width, height) = (width as usize, height as usize);
+        if width.saturating_mul(height) > MAX_PIXELS {
+            return Err(error(PhotoProblem::Huge { width, height }));
+        }
+        let decoded = image::ImageReader::open(path)
+            .and_then(|r| r.with_guessed_format())
+            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?
+            .decode()
+            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
+        GreyImage::from_dynamic(&decoded).map_err(error)
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// The intensities, row-major from the top.
+    pub fn data(&self) -> &[f32] {
+        &self.data
+    }
+
+    /// The intensity at pixel `(x, y)`.
+    pub fn get(&self, x: usize, y: usize) -> f32 {
+        self.data[y * self.width + x]
+    }
+
+    /// The image mirrored left to right.
+    pub fn mirrored(&self) -> Self {
+        let mut data = Vec::with_capacity(self.data.len());
+        for row in self.data.chunks_exact(self.width) {
+            data.extend(row.iter().rev());
+        }
+        GreyImage { data, ..*self }
+    }
+
+    /// Central-difference gradients (`∂/∂x`, `∂/∂y`), one-sided at the borders.
+    pub fn gradients(&self) -> (Vec<f32>, Vec<f32>) {
+        let (w, h) = (self.width, self.height);
+        let mut gx = vec![0.0; w * h];
+        let mut gy = vec![0.0; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+                let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
+                gx[y * w + x] = (self.get(x1, y) - self.get(x0, y)) / (x1 - x0) as f32;
+                gy[y * w + x] = (self.get(x, y1) - self.get(x, y0)) / (y1 - y0) as f32;
+            }
+        }
+        (gx, gy)
+    }
+
+    /// Bilinear interpolation of `values` (laid out like this image) at `(x, y)` in pixel
+    /// coordinates (pixel centres at whole numbers), clamped to the border.
+    pub fn sample(&self, values: &[f32], x: Real, y: Real) -> f32 {
+        let (w, h) = (self.width, self.height);
+        let xc = x.clamp(0.0, (w - 1) as Real);
+        let yc = y.clamp(0.0, (h - 1) as Real);
+        let (x0, y0) = (xc.floor() as usize, yc.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = ((xc - x0 as Real) as f32, (yc - y0 as Real) as f32);
+        let top = values[y0 * w + x0] * (1.0 - fx) + values[y0 * w + x1] * fx;
+        let bottom = values[y1 * w + x0] * (1.0 - fx) + values[y1 * w + x1] * fx;
+        top * (1.0 - fy) + bottom * fy
+    }
+}
