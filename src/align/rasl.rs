@@ -39,7 +39,7 @@
 //! and mirrors, moved into the canonical plane (eye centres at `(±25, 0)`, `y` up) by a
 //! similarity.
 
-use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, Point2, Vector2};
+use nalgebra::{DMatrix, Matrix2, Matrix2x3, Matrix3, Point2, Vector2};
 use rayon::prelude::*;
 
 use super::image::{GreyImage, PhotoProblem};
@@ -60,6 +60,9 @@ pub struct RaslOptions {
     pub outer_tolerance: Real,
     /// Inner loop: stop when `‖D + JΔτ − A − E‖_F / ‖D‖_F` is below this (10⁻⁷).
     pub inner_tolerance: Real,
+    /// The inner loop's growth factor of the penalty `μ`: 1.5 (RASL's is 1.25; see
+    /// [`RaslOptions::default`]).
+    pub rho: Real,
     /// Outer iterations at most (50).
     pub max_outer: usize,
     /// Inner iterations at most per outer iteration (1000).
@@ -67,6 +70,12 @@ pub struct RaslOptions {
 }
 
 impl Default for RaslOptions {
+    /// RASL's settings, except `ρ = 1.5` instead of 1.25, chosen by measurement
+    /// (`cargo run --release --example rasl_eval`): on 35 photos under varied poses it needs
+    /// 172 inner iterations instead of 307 (1.3 s instead of 2.4 s), and the frontal structure's
+    /// distance from the true frontal changes by 0.003 units (1.653 against 1.650); on a batch
+    /// of warped copies the worst landmark disagreement after alignment is 0.010 px instead of
+    /// 0.007.
     fn default() -> Self {
         RaslOptions {
             width: 100,
@@ -74,6 +83,7 @@ impl Default for RaslOptions {
             lambda_c: 1.0,
             outer_tolerance: 1e-2,
             inner_tolerance: 1e-7,
+            rho: 1.5,
             max_outer: 50,
             max_inner: 1000,
         }
@@ -123,6 +133,10 @@ pub struct RaslResult {
     pub objective: Vec<Real>,
     /// Inner iterations (singular-value thresholdings) run in all.
     pub inner_iterations: usize,
+    /// Wall time spent in the inner loops, seconds.
+    pub inner_seconds: Real,
+    /// Wall time of the whole alignment, seconds.
+    pub seconds: Real,
     /// The options used.
     pub options: RaslOptions,
 }
@@ -220,78 +234,180 @@ impl Column {
         }
     }
 
-    /// The warped image (not normalised) and, with `jacobian`, its `d × 6` derivative in the
-    /// affine parameters `[a11 a12 a13 a21 a22 a23]`.
+    /// The warped image (not normalised), vectorised column-major (pixel `(x, y)` at
+    /// `x·height + y`), and, with `gradients`, the image gradients sampled at the same places:
+    /// the Jacobian of the warped image in the affine parameters `[a11 a12 a13 a21 a22 a23]` is
+    /// `[Iₓ·x, Iₓ·y, Iₓ, I_y·x, I_y·y, I_y]` per pixel.
     fn warp(
         &self,
         tau: &Matrix2x3<Real>,
         width: usize,
         height: usize,
-        jacobian: bool,
-    ) -> (Vec<f32>, Option<DMatrix<f32>>) {
+        gradients: bool,
+    ) -> (Vec<f32>, Vec<[f32; 2]>) {
         let d = width * height;
         let mut values = Vec::with_capacity(d);
-        let mut j = jacobian.then(|| DMatrix::<f32>::zeros(d, 6));
-        // Column-major vectorisation: pixel (x, y) is entry x·height + y.
+        let mut sampled = Vec::with_capacity(if gradients { d } else { 0 });
         for x in 0..width {
             for y in 0..height {
                 let (xf, yf) = (x as Real, y as Real);
                 let u = tau[(0, 0)] * xf + tau[(0, 1)] * yf + tau[(0, 2)];
                 let v = tau[(1, 0)] * xf + tau[(1, 1)] * yf + tau[(1, 2)];
                 values.push(self.image.sample(self.image.data(), u, v));
-                if let Some(j) = j.as_mut() {
-                    let r = x * height + y;
-                    let (ix, iy) = (
+                if gradients {
+                    sampled.push([
                         self.image.sample(&self.gx, u, v),
                         self.image.sample(&self.gy, u, v),
-                    );
-                    let (xf, yf) = (xf as f32, yf as f32);
-                    j[(r, 0)] = ix * xf;
-                    j[(r, 1)] = ix * yf;
-                    j[(r, 2)] = ix;
-                    j[(r, 3)] = iy * xf;
-                    j[(r, 4)] = iy * yf;
-                    j[(r, 5)] = iy;
+                    ]);
                 }
             }
         }
-        (values, j)
+        (values, sampled)
     }
 }
+
+/// One column made ready for the inner loop: the normalised warped image `ỹ = y/‖y‖`, the
+/// sampled gradients, and the factors of its Jacobian `J = (I − ỹỹᵀ)·G/‖y‖` (`G` the raw
+/// Jacobian): `h = Gᵀỹ` and the upper-triangular `R` with `RᵀR = JᵀJ` (so `Q = J·R⁻¹` has
+/// orthonormal columns, the thin QR factorisation, without storing `Q`).
+struct Prepared {
+    y: Vec<f32>,
+    gradients: Vec<[f32; 2]>,
+    norm: Real,
+    h: nalgebra::Vector6<Real>,
+    r: nalgebra::Matrix6<Real>,
+}
+
+/// The raw Jacobian row of window pixel `(x, y)` with gradient `g`.
+fn jacobian_row(g: [f32; 2], x: Real, y: Real) -> nalgebra::Vector6<Real> {
+    let (ix, iy) = (Real::from(g[0]), Real::from(g[1]));
+    nalgebra::Vector6::new(ix * x, ix * y, ix, iy * x, iy * y, iy)
+}
+
+fn prepare(column: &Column, tau: &Matrix2x3<Real>, width: usize, height: usize) -> Prepared {
+    let (values, gradients) = column.warp(tau, width, height, true);
+    let norm = values
+        .iter()
+        .map(|v| Real::from(*v) * Real::from(*v))
+        .sum::<Real>()
+        .sqrt()
+        .max(Real::MIN_POSITIVE);
+    let y: Vec<f32> = values.iter().map(|v| (Real::from(*v) / norm) as f32).collect();
+    let mut h = nalgebra::Vector6::zeros();
+    let mut gram = nalgebra::Matrix6::zeros();
+    for (j, (&g, &yj)) in gradients.iter().zip(&y).enumerate() {
+        let row = jacobian_row(g, (j / height) as Real, (j % height) as Real);
+        h += row * Real::from(yj);
+        gram += row * row.transpose();
+    }
+    let mut jtj = (gram - h * h.transpose()) / (norm * norm);
+    // A flat column has a singular Jacobian: a whisker of ridge keeps the factor defined (its
+    // step is then ~0).
+    let ridge = 1e-12 * jtj.trace().max(Real::MIN_POSITIVE);
+    for k in 0..6 {
+        jtj[(k, k)] += ridge;
+    }
+    let r = jtj
+        .cholesky()
+        .map(|c| c.l().transpose())
+        .unwrap_or_else(nalgebra::Matrix6::identity);
+    Prepared {
+        y,
+        gradients,
+        norm,
+        h,
+        r,
+    }
+}
+
+/// Pixels per parallel chunk of the inner loop's element-wise passes.
+const CHUNK: usize = 512;
+
+/// Pixels per parallel chunk of the singular-value thresholding's matrix products (large
+/// enough for sgemm to run at speed, small enough to share among the threads).
+const PRODUCT_CHUNK: usize = 2048;
 
 /// Singular-value thresholding of `t` at `threshold` through the Gram matrix (see the module
 /// documentation): returns `U·max(Σ − threshold, 0)·Vᵀ`, the nuclear norm of the result, and
 /// the largest singular value of `t`.
 pub fn singular_value_threshold(t: &DMatrix<f32>, threshold: Real) -> (DMatrix<f32>, Real, Real) {
-    let gram32 = t.tr_mul(t);
+    let (d, n) = t.shape();
+    let pixel_major = t.transpose();
+    let mut out = vec![0.0f32; d * n];
+    let (nuclear, largest) = svt_pixel_major(pixel_major.as_slice(), n, threshold, &mut out);
+    (
+        DMatrix::from_column_slice(n, d, &out).transpose(),
+        nuclear,
+        largest,
+    )
+}
+
+/// [`singular_value_threshold`] on pixel-major storage (`t[j·n + k]` = pixel `j` of column
+/// `k`, i.e. the `n × d` transpose in column-major order), writing into `out`; both products
+/// run in parallel over chunks of pixels.
+fn svt_pixel_major(t: &[f32], n: usize, threshold: Real, out: &mut [f32]) -> (Real, Real) {
+    // Gram = Σ over pixel chunks of X·Xᵀ, with Xᵀ a strided view of the same memory (no
+    // copies: nalgebra hands both to matrixmultiply's sgemm).
+    let gram32 = t
+        .par_chunks(PRODUCT_CHUNK * n)
+        .map(|chunk| {
+            let columns = chunk.len() / n;
+            let x = nalgebra::DMatrixView::<f32>::from_slice(chunk, n, columns);
+            let xt =
+                nalgebra::DMatrixView::<f32, nalgebra::Dyn, nalgebra::Dyn>::from_slice_with_strides_generic(
+                    chunk,
+                    nalgebra::Dyn(columns),
+                    nalgebra::Dyn(n),
+                    nalgebra::Dyn(n),
+                    nalgebra::Dyn(1),
+                );
+            let mut g = DMatrix::<f32>::zeros(n, n);
+            g.gemm(1.0, &x, &xt, 0.0);
+            g
+        })
+        .reduce(|| DMatrix::<f32>::zeros(n, n), |a, b| a + b);
     let gram: DMatrix<Real> = gram32.map(Real::from);
     let eigen = gram.symmetric_eigen();
-    let n = t.ncols();
-    let mut weights = DMatrix::<Real>::zeros(n, n);
+    // The kept singular vectors: A = V_r·diag(w)·V_rᵀ·T with wₖ = (σₖ − threshold)/σₖ, as two
+    // thin products (rank r ≪ n in practice).
     let mut nuclear = 0.0;
     let mut largest: Real = 0.0;
+    let mut kept_columns = Vec::new();
+    let mut scaled_columns = Vec::new();
     for k in 0..n {
         let sigma = eigen.eigenvalues[k].max(0.0).sqrt();
         largest = largest.max(sigma);
         let kept = sigma - threshold;
         if kept > 0.0 {
             nuclear += kept;
-            let v = eigen.eigenvectors.column(k);
-            weights += (v * v.transpose()) * (kept / sigma);
+            let v = eigen.eigenvectors.column(k).map(|x| x as f32);
+            scaled_columns.push(&v * (kept / sigma) as f32);
+            kept_columns.push(v);
         }
     }
-    let weights32 = weights.map(|x| x as f32);
-    (t * weights32, nuclear, largest)
+    if kept_columns.is_empty() {
+        out.par_iter_mut().for_each(|v| *v = 0.0);
+        return (nuclear, largest);
+    }
+    let basis = DMatrix::from_columns(&kept_columns);
+    let scaled_t = DMatrix::from_columns(&scaled_columns).transpose();
+    out.par_chunks_mut(PRODUCT_CHUNK * n)
+        .zip(t.par_chunks(PRODUCT_CHUNK * n))
+        .for_each(|(o, chunk)| {
+            let columns = chunk.len() / n;
+            let view = nalgebra::DMatrixView::<f32>::from_slice(chunk, n, columns);
+            let mut coefficients = DMatrix::<f32>::zeros(scaled_t.nrows(), columns);
+            coefficients.gemm(1.0, &scaled_t, &view, 0.0);
+            let mut target = nalgebra::DMatrixViewMut::<f32>::from_slice(o, n, columns);
+            target.gemm(1.0, &basis, &coefficients, 0.0);
+        });
+    (nuclear, largest)
 }
 
+/// `sign(x)·max(|x| − threshold, 0)`, without branches (the signs of `E`'s entries are
+/// unpredictable, and mispredicted branches cost more than the arithmetic).
 fn soft_threshold(x: f32, threshold: f32) -> f32 {
-    if x > threshold {
-        x - threshold
-    } else if x < -threshold {
-        x + threshold
-    } else {
-        0.0
-    }
+    (x - threshold).max(0.0) + (x + threshold).min(0.0)
 }
 
 /// Aligns the photos (and their mirror images) by RASL and returns the frontal structure
@@ -322,6 +438,12 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
                 "RASL option {name} = {value} must be positive"
             )));
         }
+    }
+    if !(options.rho > 1.0 && options.rho.is_finite()) {
+        return Err(bad_option(format!(
+            "RASL option rho = {} must be above 1",
+            options.rho
+        )));
     }
     if options.max_outer == 0 || options.max_inner == 0 {
         return Err(bad_option("RASL iteration caps must be at least 1".into()));
@@ -358,6 +480,8 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
         return Err(bad_option(format!("no usable photo ({})", reasons.join("; "))));
     }
 
+    let start = std::time::Instant::now();
+    let mut inner_seconds = 0.0;
     let (width, height) = (options.width, options.height);
     let d = width * height;
     let n = columns.len();
@@ -380,40 +504,22 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
     let mut previous = Real::INFINITY;
     for _ in 0..options.max_outer {
         // Warp, normalise, differentiate, factor.
-        let prepared: Vec<(Vec<f32>, DMatrix<f32>, DMatrix<f32>)> = columns
+        let prepared: Vec<Prepared> = columns
             .par_iter()
             .zip(&warps)
-            .map(|(column, tau)| {
-                let (values, jacobian) = column.warp(tau, width, height, true);
-                let jacobian = jacobian.expect("asked for");
-                let norm = values
-                    .iter()
-                    .map(|v| v * v)
-                    .sum::<f32>()
-                    .sqrt()
-                    .max(f32::MIN_POSITIVE);
-                let y: Vec<f32> = values.iter().map(|v| v / norm).collect();
-                let yv = DVector::from_column_slice(&y);
-                // J = (I − ỹỹᵀ) ∂y/∂p / ‖y‖
-                let projected = (&jacobian - &yv * (yv.transpose() * &jacobian)) / norm;
-                let qr = projected.map(Real::from).qr();
-                (y, qr.q().map(|x| x as f32), qr.r().map(|x| x as f32))
-            })
+            .map(|(column, tau)| prepare(column, tau, width, height))
             .collect();
         let mut data = DMatrix::<f32>::zeros(d, n);
-        for (k, (y, _, _)) in prepared.iter().enumerate() {
-            data.column_mut(k).copy_from_slice(y);
+        for (k, p) in prepared.iter().enumerate() {
+            data.column_mut(k).copy_from_slice(&p.y);
         }
-        let (a, e, delta, inner, value) = inner_loop(&data, &prepared, lambda, options);
+        let inner_start = std::time::Instant::now();
+        let (a, e, steps, inner, value) = inner_loop(&data, &prepared, lambda, height, options);
+        inner_seconds += inner_start.elapsed().as_secs_f64();
         inner_total += inner;
         low_rank = a;
         sparse = e;
-        for (k, warp) in warps.iter_mut().enumerate() {
-            let r = &prepared[k].2;
-            let step = r
-                .map(Real::from)
-                .solve_upper_triangular(&delta[k])
-                .unwrap_or_else(|| DVector::zeros(6));
+        for (warp, step) in warps.iter_mut().zip(&steps) {
             for p in 0..6 {
                 warp[(p / 3, p % 3)] += step[p];
             }
@@ -516,6 +622,8 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
         sparse,
         objective,
         inner_iterations: inner_total,
+        inner_seconds,
+        seconds: start.elapsed().as_secs_f64(),
         options: *options,
     })
 }
@@ -533,62 +641,268 @@ fn warped_matrix(columns: &[Column], warps: &[Matrix2x3<Real>], width: usize, he
     m
 }
 
-type Prepared = (Vec<f32>, DMatrix<f32>, DMatrix<f32>);
-
-/// The inner augmented-Lagrange loop: returns `A`, `E`, the steps `δᵢ` (in the `Qᵢ` basis),
-/// the iterations run and the objective `‖A‖_* + λ‖E‖₁`.
+/// The inner augmented-Lagrange loop: returns `A`, `E` (`d × n`), the warp steps `Δτᵢ`, the
+/// iterations run and the objective `‖A‖_* + λ‖E‖₁`.
+///
+/// Everything is stored pixel-major (`[j·n + k]`, see [`svt_pixel_major`]) and each update is
+/// one fused, parallel pass over the pixels.
 fn inner_loop(
     data: &DMatrix<f32>,
     prepared: &[Prepared],
     lambda: Real,
+    height: usize,
     options: &RaslOptions,
-) -> (DMatrix<f32>, DMatrix<f32>, Vec<DVector<Real>>, usize, Real) {
+) -> (
+    DMatrix<f32>,
+    DMatrix<f32>,
+    Vec<nalgebra::Vector6<Real>>,
+    usize,
+    Real,
+) {
     let (d, n) = data.shape();
-    let (_, _, two_norm) = singular_value_threshold(data, Real::INFINITY);
-    let inf_norm = data.iter().fold(0.0f32, |m, v| m.max(v.abs())) as Real / lambda;
+    let dm = data.transpose();
+    let dm = dm.as_slice();
+    // Gradients, pixel-major: grad[j·n + k] = (Iₓ, I_y) of column k at pixel j.
+    let mut grad = vec![[0.0f32; 2]; d * n];
+    grad.par_chunks_mut(n).enumerate().for_each(|(j, row)| {
+        for (k, g) in row.iter_mut().enumerate() {
+            *g = prepared[k].gradients[j];
+        }
+    });
+    let inverse_norm: Vec<f32> = prepared.iter().map(|p| (1.0 / p.norm) as f32).collect();
+    let mut scratch = vec![0.0f32; d * n];
+    let (_, two_norm) = svt_pixel_major(dm, n, Real::INFINITY, &mut scratch);
+    let inf_norm = dm.iter().fold(0.0f32, |m, v| m.max(v.abs())) as Real / lambda;
     let dual = two_norm.max(inf_norm);
-    let mut y = data.map(|v| v / dual as f32);
+    let mut y: Vec<f32> = dm.iter().map(|v| v / dual as f32).collect();
     let mut mu = 1.25 / two_norm;
-    let rho = 1.25;
-    let data_norm = data.norm() as Real;
-    let mut e = DMatrix::<f32>::zeros(d, n);
-    let mut a = DMatrix::<f32>::zeros(d, n);
-    let mut dt = DMatrix::<f32>::zeros(d, n);
-    let mut delta: Vec<DVector<Real>> = vec![DVector::zeros(6); n];
+    let rho = options.rho;
+    let data_norm = dm
+        .iter()
+        .map(|v| Real::from(*v) * Real::from(*v))
+        .sum::<Real>()
+        .sqrt();
+    let mut e = vec![0.0f32; d * n];
+    let mut a = vec![0.0f32; d * n];
+    let mut dt = vec![0.0f32; d * n];
+    let mut t = vec![0.0f32; d * n];
+    let mut steps = vec![nalgebra::Vector6::<Real>::zeros(); n];
     let mut nuclear = 0.0;
     let mut iterations = 0;
+    let block = CHUNK * n;
     for _ in 0..options.max_inner {
         iterations += 1;
         let inv_mu = (1.0 / mu) as f32;
         // A: singular-value thresholding of D + JΔτ − E + Y/μ.
-        let mut t = data + &dt - &e;
-        t.zip_apply(&y, |t, y| *t += y * inv_mu);
-        let (low, norm, _) = singular_value_threshold(&t, 1.0 / mu);
-        a = low;
-        nuclear = norm;
+        t.par_chunks_mut(block).enumerate().for_each(|(c, out)| {
+            let o = c * block;
+            let end = o + out.len();
+            let inputs = dm[o..end].iter().zip(&dt[o..end]).zip(&e[o..end]).zip(&y[o..end]);
+            for (v, (((d, dt), e), y)) in out.iter_mut().zip(inputs) {
+                *v = d + dt - e + y * inv_mu;
+            }
+        });
+        nuclear = svt_pixel_major(&t, n, 1.0 / mu, &mut a).0;
         // E: soft thresholding of D + JΔτ − A + Y/μ.
         let shrink = (lambda / mu) as f32;
-        e = data + &dt - &a;
-        e.zip_apply(&y, |e, y| *e = soft_threshold(*e + y * inv_mu, shrink));
-        // Δτ: least squares per column against A + E − D − Y/μ.
-        let mut target = &a + &e - data;
-        target.zip_apply(&y, |t, y| *t -= y * inv_mu);
-        for k in 0..n {
-            let q = &prepared[k].1;
-            let step = q.tr_mul(&target.column(k));
-            delta[k] = step.map(Real::from);
-            dt.set_column(k, &(q * step));
+        e.par_chunks_mut(block).enumerate().for_each(|(c, out)| {
+            let o = c * block;
+            let end = o + out.len();
+            let inputs = dm[o..end].iter().zip(&dt[o..end]).zip(&a[o..end]).zip(&y[o..end]);
+            for (v, (((d, dt), a), y)) in out.iter_mut().zip(inputs) {
+                *v = soft_threshold(d + dt - a + y * inv_mu, shrink);
+            }
+        });
+        // Δτ: δₖ = Qₖᵀtₖ for t = A + E − D − Y/μ, Δτₖ = Rₖ⁻¹δₖ. With Q = J·R⁻¹ and
+        // Jᵀt = (Gᵀt − h·(ỹᵀt))/‖y‖: per column, the six sums of Gᵀt and ỹᵀt.
+        let sums = (0..d.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut partial = vec![[0.0f32; 7]; n];
+                for j in c * CHUNK..((c + 1) * CHUNK).min(d) {
+                    let (px, py) = ((j / height) as f32, (j % height) as f32);
+                    for (k, acc) in partial.iter_mut().enumerate() {
+                        let x = j * n + k;
+                        let target = a[x] + e[x] - dm[x] - y[x] * inv_mu;
+                        let [gx, gy] = grad[x];
+                        let (tx, ty) = (gx * target, gy * target);
+                        acc[0] += tx * px;
+                        acc[1] += tx * py;
+                        acc[2] += tx;
+                        acc[3] += ty * px;
+                        acc[4] += ty * py;
+                        acc[5] += ty;
+                        acc[6] += dm[x] * target;
+                    }
+                }
+                partial
+                    .iter()
+                    .map(|p| p.map(Real::from))
+                    .collect::<Vec<[Real; 7]>>()
+            })
+            .reduce(
+                || vec![[0.0; 7]; n],
+                |mut s, p| {
+                    for (a, b) in s.iter_mut().zip(&p) {
+                        for i in 0..7 {
+                            a[i] += b[i];
+                        }
+                    }
+                    s
+                },
+            );
+        for (k, (sum, column)) in sums.iter().zip(prepared).enumerate() {
+            let gt = nalgebra::Vector6::from_column_slice(&sum[..6]);
+            let jt = (gt - column.h * sum[6]) / column.norm;
+            let delta = column
+                .r
+                .tr_solve_upper_triangular(&jt)
+                .unwrap_or_else(nalgebra::Vector6::zeros);
+            steps[k] = column
+                .r
+                .solve_upper_triangular(&delta)
+                .unwrap_or_else(nalgebra::Vector6::zeros);
         }
-        // Residual and multipliers.
-        let mut z = data + &dt - &a - &e;
-        let residual = z.norm() as Real / data_norm;
-        z *= mu as f32;
-        y += &z;
+        // Per column, JΔτ at pixel j is (Gⱼ·Δτ − ỹⱼ·(h·Δτ))/‖y‖.
+        let coefficients: Vec<[f32; 7]> = steps
+            .iter()
+            .zip(prepared)
+            .map(|(s, p)| {
+                let hs = p.h.dot(s);
+                [s[0], s[1], s[2], s[3], s[4], s[5], hs].map(|v| v as f32)
+            })
+            .collect();
+        // JΔτ, the residual Z = D + JΔτ − A − E, and Y += μZ, in one pass.
+        let mu32 = mu as f32;
+        let residual_squared: Real = dt
+            .par_chunks_mut(block)
+            .zip(y.par_chunks_mut(block))
+            .enumerate()
+            .map(|(c, (dt_chunk, y_chunk))| {
+                let mut sum = 0.0f64;
+                let rows = dt_chunk.chunks_exact_mut(n).zip(y_chunk.chunks_exact_mut(n));
+                for (r, (dt_row, y_row)) in rows.enumerate() {
+                    let j = c * CHUNK + r;
+                    let o = j * n;
+                    let (px, py) = ((j / height) as f32, (j % height) as f32);
+                    for k in 0..n {
+                        let x = o + k;
+                        let s = &coefficients[k];
+                        let [gx, gy] = grad[x];
+                        let g_dot = gx * (s[0] * px + s[1] * py + s[2]) + gy * (s[3] * px + s[4] * py + s[5]);
+                        let step = (g_dot - dm[x] * s[6]) * inverse_norm[k];
+                        dt_row[k] = step;
+                        let z = dm[x] + step - a[x] - e[x];
+                        sum += Real::from(z) * Real::from(z);
+                        y_row[k] += mu32 * z;
+                    }
+                }
+                sum
+            })
+            .sum();
         mu *= rho;
-        if residual < options.inner_tolerance {
+        if residual_squared.sqrt() / data_norm < options.inner_tolerance {
             break;
         }
     }
     let l1: Real = e.iter().map(|v| Real::from(v.abs())).sum();
-    (a, e, delta, iterations, nuclear + lambda * l1)
+    let a = DMatrix::from_column_slice(n, d, &a).transpose();
+    let e = DMatrix::from_column_slice(n, d, &e).transpose();
+    (a, e, steps, iterations, nuclear + lambda * l1)
+}
+
+/// A column (`d = width × height` values, column-major) as an 8-bit image, mapped by `scale`.
+fn column_image(values: &[f32], width: usize, height: usize, scale: impl Fn(f32) -> f32) -> image::GrayImage {
+    image::GrayImage::from_fn(width as u32, height as u32, |x, y| {
+        let v = scale(values[x as usize * height + y as usize]);
+        image::Luma([(255.0 * v.clamp(0.0, 1.0)).round() as u8])
+    })
+}
+
+/// The columns of `m` side by side in a grid of `per_row` columns, each mapped by `scale`.
+fn mosaic(
+    m: &DMatrix<f32>,
+    width: usize,
+    height: usize,
+    scale: impl Fn(usize, f32) -> f32,
+) -> image::GrayImage {
+    let n = m.ncols();
+    let per_row = (n as Real).sqrt().ceil().max(1.0) as usize;
+    let rows = n.div_ceil(per_row);
+    let mut out = image::GrayImage::new((per_row * width) as u32, (rows * height) as u32);
+    for k in 0..n {
+        let tile = column_image(m.column(k).as_slice(), width, height, |v| scale(k, v));
+        let (x0, y0) = ((k % per_row) * width, (k / per_row) * height);
+        for (x, y, p) in tile.enumerate_pixels() {
+            out.put_pixel(x0 as u32 + x, y0 as u32 + y, *p);
+        }
+    }
+    out
+}
+
+fn encode(image: &image::GrayImage) -> Result<Vec<u8>, String> {
+    let mut bytes = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
+impl RaslResult {
+    /// Pictures of the alignment for people to look at, as `(file name, PNG bytes)`: the warped
+    /// photos and mirrors before and after (`before.png`, `aligned.png`, a grid in batch order:
+    /// photo, mirror, photo, …), the low-rank part (`low-rank.png`, each column stretched to
+    /// its range), the sparse part (`sparse.png`, `|E|` over its largest value) and the mean
+    /// window before and after alignment (`mean-before.png`, `mean-after.png`: a sharp mean is
+    /// a good alignment).
+    ///
+    /// # Errors
+    /// The PNG encoder's message.
+    pub fn images(&self) -> Result<Vec<(String, Vec<u8>)>, String> {
+        let (w, h) = (self.options.width, self.options.height);
+        let identity = |_: usize, v: f32| v;
+        let stretch = |m: &DMatrix<f32>| {
+            let ranges: Vec<(f32, f32)> = m
+                .column_iter()
+                .map(|c| {
+                    c.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                        (lo.min(v), hi.max(v))
+                    })
+                })
+                .collect();
+            move |k: usize, v: f32| {
+                let (lo, hi) = ranges[k];
+                if hi > lo { (v - lo) / (hi - lo) } else { 0.0 }
+            }
+        };
+        let largest = self
+            .sparse
+            .iter()
+            .fold(0.0f32, |m, v| m.max(v.abs()))
+            .max(f32::MIN_POSITIVE);
+        let mean = |m: &DMatrix<f32>| {
+            let values: Vec<f32> = m.row_iter().map(|r| r.sum() / m.ncols() as f32).collect();
+            column_image(&values, w, h, |v| v)
+        };
+        Ok(vec![
+            (
+                "before.png".to_owned(),
+                encode(&mosaic(&self.before, w, h, identity))?,
+            ),
+            (
+                "aligned.png".to_owned(),
+                encode(&mosaic(&self.after, w, h, identity))?,
+            ),
+            (
+                "low-rank.png".to_owned(),
+                encode(&mosaic(&self.low_rank, w, h, stretch(&self.low_rank)))?,
+            ),
+            (
+                "sparse.png".to_owned(),
+                encode(&mosaic(&self.sparse, w, h, |_, v| v.abs() / largest))?,
+            ),
+            ("mean-before.png".to_owned(), encode(&mean(&self.before))?),
+            ("mean-after.png".to_owned(), encode(&mean(&self.after))?),
+        ])
+    }
 }

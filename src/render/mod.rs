@@ -7,6 +7,7 @@
 //! no triangle covers it. Files never pass the background off as a depth: the EXR has a
 //! coverage channel, the PNG reserves 0.
 
+mod photo;
 mod raster;
 mod write;
 
@@ -15,6 +16,7 @@ use nalgebra::{Point2, Point3, Rotation3, Vector3};
 use crate::Real;
 pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
+pub use photo::{SyntheticPhoto, synthetic_photo};
 pub use raster::render_heights;
 pub use write::{DepthFileError, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png};
 

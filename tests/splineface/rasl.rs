@@ -8,62 +8,17 @@ use splineface::align::{
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::reference::ReferenceFace;
-use splineface::render::{DepthMap, View, frame_raster};
+use splineface::render::{View, synthetic_photo};
 
 use crate::common::Lcg;
 
-/// A synthetic face photo: the reference face rendered from the front, lit from the upper left,
-/// with dark brows, eyes and lips painted at their structure points; and the 40 points in its
-/// pixels.
+/// A synthetic face photo of the reference face from the front, and its 40 points.
 pub fn face_photo(width: usize, height: usize) -> (GreyImage, Vec<Point2<Real>>) {
     let r = ReferenceFace::embedded();
     let face = FaceSurface::deform(r, r.structure(), Deformation::Affine).unwrap();
     let mesh = face.mesh(&MeshOptions { spacing: 1.0 }).unwrap().mesh;
-    let raster = frame_raster(
-        mesh.positions().iter().copied(),
-        &View::front(),
-        width,
-        height,
-        0.12,
-    )
-    .unwrap();
-    let map = DepthMap::render(&mesh, &View::front(), &raster);
-    let to_pixel = |x: Real, y: Real| {
-        Point2::new(
-            (x - raster.origin.x) / raster.spacing,
-            (height - 1) as Real - (y - raster.origin.y) / raster.spacing,
-        )
-    };
-    let points: Vec<Point2<Real>> = r.structure().iter().map(|p| to_pixel(p.x, p.y)).collect();
-    let light = nalgebra::Vector3::new(-0.4, 0.5, 1.0).normalize();
-    let eye_distance = (points[24] - points[23]).norm();
-    let features: Vec<(Point2<Real>, Real, Real)> = (9..40)
-        .filter(|&k| !(25..32).contains(&k))
-        .map(|k| {
-            let strength = if (15..25).contains(&k) { 0.6 } else { 0.45 };
-            (points[k], 0.05 * eye_distance, strength)
-        })
-        .collect();
-    let mut data = Vec::with_capacity(width * height);
-    for row in 0..height {
-        for i in 0..width {
-            let j = height - 1 - row;
-            let value = match map.normal(i, j) {
-                Some(n) => {
-                    let shade = 0.25 + 0.75 * n.dot(&light).max(0.0);
-                    let p = Point2::new(i as Real, row as Real);
-                    let dark: Real = features
-                        .iter()
-                        .map(|(c, s, a)| a * (-(p - c).norm_squared() / (2.0 * s * s)).exp())
-                        .sum();
-                    shade * (1.0 - dark.min(0.9))
-                }
-                None => 0.1,
-            };
-            data.push(value as f32);
-        }
-    }
-    (GreyImage::new(width, height, data).unwrap(), points)
+    let photo = synthetic_photo(&mesh, r.structure(), &View::front(), width, height, 0.12).unwrap();
+    (photo.image, photo.points)
 }
 
 fn to3(m: &Matrix2x3<Real>) -> Matrix3<Real> {
@@ -236,6 +191,37 @@ fn rasl_undoes_known_warps_and_puts_occlusions_in_the_sparse_part() {
             "copy {i}: |E| {inside} inside vs {outside} outside"
         );
     }
+    // The pictures decode, and the mean window is sharper after alignment than before.
+    let images = result.images().unwrap();
+    let names: Vec<&str> = images.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "before.png",
+            "aligned.png",
+            "low-rank.png",
+            "sparse.png",
+            "mean-before.png",
+            "mean-after.png"
+        ]
+    );
+    let sharpness = |bytes: &[u8]| -> Real {
+        let image = image::load_from_memory(bytes).unwrap().to_luma8();
+        assert_eq!((image.width(), image.height()), (100, 120));
+        let mut energy = 0.0;
+        for y in 0..120 {
+            for x in 1..100 {
+                let d = Real::from(image.get_pixel(x, y)[0]) - Real::from(image.get_pixel(x - 1, y)[0]);
+                energy += d * d;
+            }
+        }
+        energy
+    };
+    let (blurred, sharp) = (sharpness(&images[4].1), sharpness(&images[5].1));
+    assert!(
+        sharp > 1.2 * blurred,
+        "mean gradient energy {blurred} before, {sharp} after"
+    );
     // The warps do not shrink: the mean warp keeps its starting scale.
     let scale = |warps: &[Matrix2x3<Real>]| -> Real {
         warps
