@@ -341,3 +341,40 @@ fn images_are_validated() {
     assert_eq!((read.width(), read.height()), (64, 80));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn rasl_feeds_the_depth_stage() {
+    use splineface::depth::{DepthOptions, Pose, StructurePrior, estimate_depth};
+    use splineface::structure::correlation;
+    let r = ReferenceFace::embedded();
+    let face = FaceSurface::deform(r, r.structure(), Deformation::Affine).unwrap();
+    let mesh = face.mesh(&MeshOptions { spacing: 1.0 }).unwrap().mesh;
+    let mut rng = Lcg(8);
+    let mut photos = Vec::new();
+    let mut poses = Vec::new();
+    for k in 0..10 {
+        let (yaw, pitch, roll) = (
+            rng.uniform(-35.0, 35.0),
+            rng.uniform(-15.0, 15.0),
+            rng.uniform(-10.0, 10.0),
+        );
+        let view = View::from_yaw_pitch_roll_degrees(yaw, pitch, roll);
+        let photo = synthetic_photo(&mesh, r.structure(), &view, 200, 240, 0.12).unwrap();
+        photos.push(RaslPhoto {
+            image: photo.image,
+            points: PhotoPoints::new(format!("p{k}"), photo.points).unwrap(),
+        });
+        poses.push(Pose::from_yaw_pitch_roll_degrees(yaw, pitch, roll, 1.0));
+    }
+    let result = rasl_frontal(&photos, &RaslOptions::default()).unwrap();
+    let points: Vec<PhotoPoints> = photos.iter().map(|p| p.points.clone()).collect();
+    let prior = StructurePrior::from_reference(r);
+    let estimate = estimate_depth(&points, &result.frontal, &prior, &DepthOptions::default()).unwrap();
+    let depths = |ps: &[nalgebra::Point3<Real>]| ps.iter().map(|p| p.z).collect::<Vec<_>>();
+    let r_depth = correlation(&depths(&estimate.structure), &depths(r.structure())).unwrap();
+    assert!(r_depth > 0.999, "depth correlation {r_depth}");
+    for (fit, pose) in estimate.photos.iter().zip(&poses) {
+        let error = fit.pose.angle_to_degrees(pose);
+        assert!(error < 1.5, "{}: {error}°", fit.name);
+    }
+}
