@@ -45,12 +45,14 @@
 pub mod align;
 pub mod bspline;
 pub mod compare;
+pub mod demo;
 pub mod depth;
 pub mod export;
 pub mod face;
 pub mod io;
 pub mod landmarks;
 pub mod mesh;
+pub mod pipeline;
 pub mod reference;
 pub mod render;
 pub mod structure;

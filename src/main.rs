@@ -6,10 +6,14 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use nalgebra::{Affine3, Matrix4, Point3, Vector3};
+use splineface::align::{GreyImage, PhotoPoints};
 use splineface::bspline::BSplineSurface;
 use splineface::compare::CompareOptions;
+use splineface::face::{Deformation, MeshOptions, Units};
 use splineface::landmarks::{read_landmarks_json, read_vertex_indices};
 use splineface::mesh::{TriangleMesh, read_mesh};
+use splineface::pipeline::{Input, PhotoImage, PipelineOptions, reconstruct};
+use splineface::reference::ReferenceFace;
 use splineface::reference::{ReferenceOptions, ReferenceScan, ReferenceSource, build_reference, fnv1a64};
 use splineface::render::{
     DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, heatmap_png, shaded_png,
@@ -58,6 +62,47 @@ enum Command {
         /// Free text stored in the file's provenance (licence, origin).
         #[arg(long, default_value = "")]
         note: String,
+    },
+    /// Reconstruct a face from photos and/or their landmark files.
+    ///
+    /// Landmark files (`.pts` with 68 iBUG or 40 structure points, or landmark JSON) are
+    /// matched to photos by file stem in `--landmarks`; with landmarks and no photos the run is
+    /// points-only (no RASL, no texture).
+    Reconstruct {
+        /// Photos (JPEG, PNG, BMP, TIFF, WebP).
+        photos: Vec<PathBuf>,
+        /// A directory of photos (every image file in it, by name).
+        #[arg(long = "photos")]
+        photo_dir: Option<PathBuf>,
+        /// A directory of landmark files, one per photo, named like the photo.
+        #[arg(long)]
+        landmarks: Option<PathBuf>,
+        /// A reference face file (default: the embedded ICT mean face).
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// The directory to write into (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        #[command(flatten)]
+        output: OutputArgs,
+    },
+    /// Run the whole pipeline on the embedded demo subject: render a dozen photos of it under
+    /// varied poses, reconstruct the face and compare it with the truth.
+    Demo {
+        /// The directory to write into (created if missing).
+        #[arg(long, default_value = "splineface-demo")]
+        out: PathBuf,
+        /// How many photos to take.
+        #[arg(long, default_value_t = 12)]
+        photos: usize,
+        /// Landmark noise, percent of the eye distance.
+        #[arg(long, default_value_t = 1.0)]
+        noise: f64,
+        /// The random seed of the poses and the noise.
+        #[arg(long, default_value_t = 2016)]
+        seed: u64,
+        #[command(flatten)]
+        output: OutputArgs,
     },
     /// Render a mesh's orthographic depth map: EXR (float32 `Z` with a coverage channel `A`)
     /// or 16-bit PNG (0 = background), chosen by the output's extension.
@@ -111,6 +156,69 @@ enum Command {
     },
 }
 
+/// Output options shared by `reconstruct` and `demo`.
+#[derive(clap::Args)]
+struct OutputArgs {
+    /// Output units: `mm` or `canonical` (the paper's: 50 between the eye centres).
+    #[arg(long, default_value = "mm")]
+    units: String,
+    /// The distance between the eye centres in millimetres, for `--units mm`.
+    #[arg(long, default_value_t = 63.0)]
+    eye_distance: f64,
+    /// The surface deformation: `local` (default, by measurement) or `affine` (the paper's).
+    #[arg(long, default_value = "local")]
+    deformation: String,
+    /// Mesh vertex spacing, canonical units.
+    #[arg(long, default_value_t = 1.0)]
+    spacing: f64,
+    /// The depth map's larger side, pixels.
+    #[arg(long, default_value_t = 512)]
+    depth_size: usize,
+}
+
+impl OutputArgs {
+    fn options(&self) -> Result<PipelineOptions> {
+        let units = match self.units.as_str() {
+            "mm" => {
+                if !(self.eye_distance > 0.0 && self.eye_distance.is_finite()) {
+                    bail!("--eye-distance {} must be positive", self.eye_distance);
+                }
+                Units::Millimetres {
+                    eye_distance: self.eye_distance,
+                }
+            }
+            "canonical" => Units::Canonical,
+            other => bail!("--units `{other}`: expected mm or canonical"),
+        };
+        let deformation = match self.deformation.as_str() {
+            "local" => Deformation::default(),
+            "affine" => Deformation::Affine,
+            other => bail!("--deformation `{other}`: expected local or affine"),
+        };
+        if !(self.spacing >= 0.1 && self.spacing <= 20.0) {
+            bail!(
+                "--spacing {} must be between 0.1 and 20 canonical units",
+                self.spacing
+            );
+        }
+        if !(16..=MAX_SIDE).contains(&self.depth_size) {
+            bail!(
+                "--depth-size {} must be between 16 and {MAX_SIDE}",
+                self.depth_size
+            );
+        }
+        Ok(PipelineOptions {
+            units,
+            deformation,
+            mesh: MeshOptions {
+                spacing: self.spacing,
+            },
+            depth_map_size: self.depth_size,
+            ..PipelineOptions::default()
+        })
+    }
+}
+
 fn main() -> ExitCode {
     match run(Cli::parse()) {
         Ok(()) => ExitCode::SUCCESS,
@@ -141,6 +249,28 @@ fn run(cli: Cli) -> Result<()> {
             };
             fit_reference(&meshes, &landmarks, &out, &options, &note)
         }
+        Command::Reconstruct {
+            photos,
+            photo_dir,
+            landmarks,
+            reference,
+            out,
+            output,
+        } => reconstruct_command(
+            &photos,
+            photo_dir.as_deref(),
+            landmarks.as_deref(),
+            reference.as_deref(),
+            &out,
+            &output,
+        ),
+        Command::Demo {
+            out,
+            photos,
+            noise,
+            seed,
+            output,
+        } => demo_command(&out, photos, noise, seed, &output),
         Command::RenderDepth {
             mesh,
             out,
@@ -462,5 +592,393 @@ fn fit_reference(
         fit.max_at.x, fit.max_at.y, fit.max_at.z
     );
     println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
+    Ok(())
+}
+
+const IMAGE_EXTENSIONS: [&str; 7] = ["jpg", "jpeg", "png", "bmp", "tif", "tiff", "webp"];
+
+fn has_extension(path: &Path, extensions: &[&str]) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
+}
+
+/// The files of `dir` with one of `extensions`, sorted by name.
+fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
+    let entries =
+        std::fs::read_dir(dir).with_context(|| format!("cannot read the directory {}", dir.display()))?;
+    let mut files: Vec<PathBuf> = entries
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.is_file() && has_extension(p, extensions))
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+/// A photo's 40 points from a landmark file: `.pts` (68 iBUG or 40 structure points) or JSON.
+fn read_photo_points(path: &Path) -> Result<PhotoPoints> {
+    let name = path.file_stem().map_or_else(
+        || path.display().to_string(),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    let points = if has_extension(path, &["json"]) {
+        read_landmarks_json(path)?
+            .structure_2d()
+            .with_context(|| format!("{}: 2D landmarks are needed", path.display()))?
+    } else {
+        let points = splineface::landmarks::read_pts(path)?;
+        match points.len() {
+            68 => from_ibug68(&points).with_context(|| path.display().to_string())?,
+            40 => points,
+            n => bail!(
+                "{}: {n} points; expected 68 (iBUG) or 40 (the structure)",
+                path.display()
+            ),
+        }
+    };
+    PhotoPoints::new(name, points).with_context(|| path.display().to_string())
+}
+
+/// The landmark file for a photo stem in `dir`: `STEM.pts` or `STEM.json`.
+fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
+    ["pts", "json"]
+        .iter()
+        .map(|e| dir.join(format!("{stem}.{e}")))
+        .find(|p| p.is_file())
+}
+
+fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        bail!("{}: exists and is not a directory", out.display());
+    }
+    let mut directories: Vec<PathBuf> = files
+        .iter()
+        .filter_map(|(p, _)| p.parent().map(|d| out.join(d)))
+        .collect();
+    directories.push(out.to_path_buf());
+    directories.sort();
+    directories.dedup();
+    for d in &directories {
+        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+    }
+    let absolute: Vec<(PathBuf, Vec<u8>)> = files.iter().map(|(p, b)| (out.join(p), b.clone())).collect();
+    write_files(&absolute)
+}
+
+fn progress(message: &str) {
+    eprintln!("splineface: {message}");
+}
+
+fn reconstruct_command(
+    photos: &[PathBuf],
+    photo_dir: Option<&Path>,
+    landmark_dir: Option<&Path>,
+    reference_path: Option<&Path>,
+    out: &Path,
+    output: &OutputArgs,
+) -> Result<()> {
+    let options = output.options()?;
+    if out.exists() && !out.is_dir() {
+        bail!("{}: exists and is not a directory", out.display());
+    }
+    let reference = match reference_path {
+        Some(path) => {
+            let text =
+                std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            ReferenceFace::from_json(&text)
+                .with_context(|| format!("{} is not a valid reference face", path.display()))?
+        }
+        None => ReferenceFace::embedded().clone(),
+    };
+    let mut photo_paths = photos.to_vec();
+    if let Some(dir) = photo_dir {
+        photo_paths.extend(files_in(dir, &IMAGE_EXTENSIONS)?);
+    }
+    for p in &photo_paths {
+        if !p.exists() {
+            bail!("{}: no such file", p.display());
+        }
+    }
+    let mut inputs = Vec::new();
+    let mut skipped: Vec<String> = Vec::new();
+    if photo_paths.is_empty() {
+        let Some(dir) = landmark_dir else {
+            bail!(
+                "nothing to reconstruct from: give photos (PHOTO... or --photos DIR) and/or --landmarks DIR"
+            );
+        };
+        let files = files_in(dir, &["pts", "json"])?;
+        if files.is_empty() {
+            bail!("{}: no landmark files (.pts or .json)", dir.display());
+        }
+        progress(&format!("points only: {} landmark files", files.len()));
+        for file in files {
+            inputs.push(Input {
+                points: read_photo_points(&file)?,
+                image: None,
+            });
+        }
+    } else {
+        let Some(dir) = landmark_dir else {
+            bail!(
+                "no --landmarks directory: face detection and the 68-point landmarker are not in this build yet, \
+                 so each photo needs a landmark file (STEM.pts or STEM.json)"
+            );
+        };
+        progress(&format!("reading {} photos", photo_paths.len()));
+        for path in &photo_paths {
+            let stem = path
+                .file_stem()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default();
+            let Some(file) = landmark_file(dir, &stem) else {
+                skipped.push(format!(
+                    "{}: no landmark file {stem}.pts or {stem}.json in {}",
+                    path.display(),
+                    dir.display()
+                ));
+                continue;
+            };
+            let points = read_photo_points(&file)?;
+            let image = match GreyImage::read(path) {
+                Err(e) => {
+                    skipped.push(e.to_string());
+                    continue;
+                }
+                Ok(_) => image::open(path)
+                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+                    .and_then(|d| {
+                        PhotoImage::from_dynamic(&d).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+                    }),
+            };
+            match image {
+                Ok(image) => inputs.push(Input {
+                    points: PhotoPoints { name: stem, ..points },
+                    image: Some(image),
+                }),
+                Err(e) => skipped.push(e.to_string()),
+            }
+        }
+        for s in &skipped {
+            progress(&format!("skipped {s}"));
+        }
+        if inputs.is_empty() {
+            bail!("no usable photo ({} skipped)", skipped.len());
+        }
+    }
+    let start = std::time::Instant::now();
+    let result = reconstruct(&inputs, &reference, &options, progress)?;
+    let mut files = result.files()?;
+    if !skipped.is_empty() {
+        // Record the skipped photos in the report.
+        if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
+            let mut report: serde_json::Value = serde_json::from_slice(bytes)?;
+            report["photos_skipped"] = skipped.clone().into();
+            *bytes = serde_json::to_vec_pretty(&report)?;
+        }
+    }
+    write_into(out, &files)?;
+    for d in &result.dropped {
+        progress(&format!("dropped {}: {}", d.name, d.reason));
+    }
+    for w in &result.depth.warnings {
+        progress(&format!("warning: {w}"));
+    }
+    println!("{}", out.display());
+    println!(
+        "  photos     {} used{}",
+        result.depth.photos.len(),
+        if skipped.is_empty() {
+            String::new()
+        } else {
+            format!(", {} skipped", skipped.len())
+        }
+    );
+    println!(
+        "  frontal    {:?} (residual {:.2} units)",
+        result.frontal.method, result.frontal.residual_rms
+    );
+    println!(
+        "  depth      SIM {:.4}, {} iterations",
+        result.depth.similarity, result.depth.iterations
+    );
+    println!(
+        "  mesh       {} vertices, {} triangles{}",
+        result.mesh.mesh.positions().len(),
+        result.mesh.mesh.triangles().len(),
+        if result.textured.is_some() {
+            ", textured"
+        } else {
+            ""
+        }
+    );
+    println!("  files      {}", files.len());
+    println!("  time       {:.2} s", start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &OutputArgs) -> Result<()> {
+    let options = output.options()?;
+    if out.exists() && !out.is_dir() {
+        bail!("{}: exists and is not a directory", out.display());
+    }
+    let start = std::time::Instant::now();
+    progress(&format!(
+        "photographing the demo subject: {photos} photos, landmark noise {noise}% of the eye distance"
+    ));
+    let scene = splineface::demo::scene(&splineface::demo::SceneOptions {
+        photos,
+        noise: noise / 100.0,
+        seed,
+        ..splineface::demo::SceneOptions::default()
+    })
+    .map_err(anyhow::Error::msg)?;
+    let result = reconstruct(&scene.inputs, ReferenceFace::embedded(), &options, progress)?;
+    progress("comparing with the truth");
+    let to_units = options.units.transform();
+    let scale = options.units.per_canonical_unit();
+    let truth_mesh = scene.truth_mesh.transformed(&to_units);
+    let truth_structure: Vec<_> = scene.truth_structure.iter().map(|p| p * scale).collect();
+    let reconstruction = result.output_mesh();
+    let comparison = splineface::compare::compare(
+        &reconstruction,
+        &truth_mesh,
+        Some((&result.structure(), &truth_structure)),
+        &CompareOptions::default(),
+    )?;
+    // The baseline: the reference face unchanged.
+    let mean_face = splineface::face::FaceSurface::deform(
+        ReferenceFace::embedded(),
+        ReferenceFace::embedded().structure(),
+        Deformation::Affine,
+    )?
+    .mesh(&options.mesh)?
+    .mesh
+    .transformed(&to_units);
+    let reference_structure: Vec<_> = ReferenceFace::embedded()
+        .structure()
+        .iter()
+        .map(|p| p * scale)
+        .collect();
+    let baseline = splineface::compare::compare(
+        &mean_face,
+        &truth_mesh,
+        Some((&reference_structure, &truth_structure)),
+        &CompareOptions::default(),
+    )?;
+
+    let mut files: Vec<(PathBuf, Vec<u8>)> = scene
+        .files()
+        .map_err(anyhow::Error::msg)?
+        .into_iter()
+        .map(|(p, b)| (Path::new("photos").join(p), b))
+        .collect();
+    files.extend(
+        result
+            .files()?
+            .into_iter()
+            .map(|(p, b)| (Path::new("reconstruction").join(p), b)),
+    );
+    let (w, h) = (
+        comparison.reconstruction.raster.width,
+        comparison.reconstruction.raster.height,
+    );
+    let encode =
+        |r: Result<Vec<u8>, splineface::render::DepthFileError>| r.map_err(|e| anyhow::anyhow!("{e}"));
+    let mut stats = serde_json::to_value(&comparison.stats)?;
+    stats["baseline_mean_face"] = serde_json::to_value(&baseline.stats)?;
+    stats["units"] = options.units.name().into();
+    files.push((
+        "compare/heatmap.png".into(),
+        encode(heatmap_png(
+            &comparison.abs_dz,
+            w,
+            h,
+            comparison.heatmap_max,
+            "mm",
+        ))?,
+    ));
+    files.push(("compare/truth.png".into(), encode(shaded_png(&comparison.truth))?));
+    files.push((
+        "compare/reconstruction.png".into(),
+        encode(shaded_png(&comparison.reconstruction))?,
+    ));
+    files.push(("compare/stats.json".into(), serde_json::to_vec_pretty(&stats)?));
+    write_into(out, &files)?;
+
+    let s = &comparison.stats;
+    let b = &baseline.stats;
+    let unit = if matches!(options.units, Units::Canonical) {
+        "units"
+    } else {
+        "mm"
+    };
+    println!(
+        "splineface demo: {} photos of the demo subject, reconstructed and compared with the truth",
+        photos
+    );
+    println!();
+    let rows: Vec<(String, String, String, &str)> = vec![
+        (
+            format!("mean |Δz| ({unit})"),
+            format!("{:.3}", s.depth_error.mean),
+            format!("{:.3}", b.depth_error.mean),
+            "",
+        ),
+        (
+            format!("90th percentile |Δz| ({unit})"),
+            format!("{:.3}", s.depth_error.p90),
+            format!("{:.3}", b.depth_error.p90),
+            "",
+        ),
+        (
+            format!("point-to-surface ({unit})"),
+            format!("{:.3}", s.point_to_surface.mean),
+            format!("{:.3}", b.point_to_surface.mean),
+            "",
+        ),
+        (
+            "|Δz| / eye distance".into(),
+            format!("{:.4}", s.paper.mean_abs_dz_over_eye_distance),
+            format!("{:.4}", b.paper.mean_abs_dz_over_eye_distance),
+            "paper: 0.1203 (Bosphorus)",
+        ),
+        (
+            "structure SSIM".into(),
+            format!("{:.4}", s.paper.structure_ssim.unwrap_or(0.0)),
+            format!("{:.4}", b.paper.structure_ssim.unwrap_or(0.0)),
+            "paper: 0.9312",
+        ),
+        (
+            "depth correlation".into(),
+            format!("{:.4}", s.paper.depth_correlation.unwrap_or(0.0)),
+            format!("{:.4}", b.paper.depth_correlation.unwrap_or(0.0)),
+            "paper: 0.9034",
+        ),
+        (
+            "100·|Δz|/z (%)".into(),
+            format!("{:.2}", s.paper.percent_of_depth),
+            format!("{:.2}", b.paper.percent_of_depth),
+            "",
+        ),
+    ];
+    println!("  {:<30} {:>14} {:>12}", "", "reconstruction", "mean face");
+    for (name, ours, base, note) in rows {
+        println!(
+            "{}",
+            format!("  {name:<30} {ours:>14} {base:>12}   {note}").trim_end()
+        );
+    }
+    println!();
+    println!(
+        "  outputs    {}/reconstruction (face.obj, face.glb, surface.step, depth.exr, ...)",
+        out.display()
+    );
+    println!(
+        "  photos     {}/photos (rerun: splineface reconstruct --photos {0}/photos --landmarks {0}/photos --out DIR)",
+        out.display()
+    );
+    println!("  heatmap    {}/compare/heatmap.png", out.display());
+    println!("  time       {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }

@@ -17,6 +17,7 @@ mod face;
 mod landmarks;
 mod mesh;
 mod mesh_closest;
+mod pipeline;
 mod rasl;
 mod reference;
 mod render;

@@ -43,6 +43,9 @@ pub struct Ict {
     pub landmarks: Vec<usize>,
     pub identities: Vec<f32>,
     pub modes: usize,
+    /// Expression blendshape offsets, `[expression][vertex][3]`, and their names.
+    pub expressions: Vec<f32>,
+    pub expression_names: Vec<String>,
 }
 
 /// A subject drawn from the ICT identity space, unified into the canonical frame.
@@ -83,27 +86,75 @@ impl Ict {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect();
         let modes = identities.len() / per_mode;
+        let read_f32 = |name: &str| -> Result<Vec<f32>> {
+            let path = dir.join(name);
+            let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+            if bytes.len() % (4 * per_mode) != 0 {
+                bail!(
+                    "{}: {} bytes is not a whole number of shapes",
+                    path.display(),
+                    bytes.len()
+                );
+            }
+            Ok(bytes
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect())
+        };
+        let expressions = read_f32("expressions.f32")?;
+        let names_path = dir.join("expressions.txt");
+        let expression_names = std::fs::read_to_string(&names_path)
+            .with_context(|| format!("reading {}", names_path.display()))?
+            .lines()
+            .map(|l| l.trim().to_owned())
+            .filter(|l| !l.is_empty())
+            .collect();
         Ok(Ict {
             neutral,
             landmarks,
             identities,
             modes,
+            expressions,
+            expression_names,
         })
     }
 
-    /// `neutral + Σₖ wₖ·modeₖ`, unified by its structure; `weights` may be shorter than the
-    /// modes (the rest are 0).
-    pub fn subject(&self, weights: &[Real]) -> Result<Subject> {
+    /// `neutral + Σ wₖ·identityₖ + Σ e·expression(name)`, unified by its structure.
+    pub fn subject_with_expression(&self, weights: &[Real], expression: &[(&str, Real)]) -> Result<Subject> {
         let n = self.neutral.positions().len();
-        let mut positions = self.neutral.positions().to_vec();
+        let mut offsets = vec![0.0 as Real; 3 * n];
         for (k, &w) in weights.iter().enumerate().take(self.modes) {
-            let mode = &self.identities[k * n * 3..(k + 1) * n * 3];
-            for (i, p) in positions.iter_mut().enumerate() {
-                for c in 0..3 {
-                    p[c] += w * Real::from(mode[3 * i + c]);
-                }
+            for (o, m) in offsets
+                .iter_mut()
+                .zip(&self.identities[k * n * 3..(k + 1) * n * 3])
+            {
+                *o += w * Real::from(*m);
             }
         }
+        for (name, w) in expression {
+            let k = self
+                .expression_names
+                .iter()
+                .position(|e| e == name)
+                .with_context(|| format!("no expression {name}"))?;
+            for (o, m) in offsets
+                .iter_mut()
+                .zip(&self.expressions[k * n * 3..(k + 1) * n * 3])
+            {
+                *o += w * Real::from(*m);
+            }
+        }
+        self.unified(&offsets)
+    }
+
+    fn unified(&self, offsets: &[Real]) -> Result<Subject> {
+        let positions: Vec<Point3<Real>> = self
+            .neutral
+            .positions()
+            .iter()
+            .enumerate()
+            .map(|(i, p)| p + nalgebra::Vector3::new(offsets[3 * i], offsets[3 * i + 1], offsets[3 * i + 2]))
+            .collect();
         let mesh = TriangleMesh::new(positions, self.neutral.triangles().to_vec())?;
         let ibug: Vec<Point3<Real>> = self.landmarks.iter().map(|&i| mesh.positions()[i]).collect();
         let structure = from_ibug68(&ibug)?;
@@ -116,6 +167,12 @@ impl Ict {
             structure,
             to_canonical,
         })
+    }
+
+    /// `neutral + Σₖ wₖ·modeₖ`, unified by its structure; `weights` may be shorter than the
+    /// modes (the rest are 0).
+    pub fn subject(&self, weights: &[Real]) -> Result<Subject> {
+        self.subject_with_expression(weights, &[])
     }
 
     /// A random identity with `w ~ N(0, scale²)` on every mode.

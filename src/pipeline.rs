@@ -1,0 +1,427 @@
+//! Photos (or their points) in, face out: the stages chained, and every output file.
+//!
+//! 1. **Frontal structure**: RASL over the photos when images are given
+//!    ([`crate::align::rasl_frontal`]), else points-only Procrustes
+//!    ([`crate::align::procrustes_frontal`]).
+//! 2. **Depth**: [`crate::depth::estimate_depth`].
+//! 3. **Surface**: the reference grid deformed to the estimated structure
+//!    ([`crate::face::FaceSurface::deform`]) and its clipped mesh, textured from the most frontal
+//!    photo when there are images.
+//! 4. **Outputs** ([`Reconstruction::files`]), in the chosen units: `face.obj` (+ `face.mtl`,
+//!    `face.png` with a texture), `face.glb`, `face.ply`, `surface.json`, `surface.step`,
+//!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, and `aligned/*.png` after RASL.
+//!
+//! Everything is computed before anything is written, so a caller can write the files all or
+//! nothing ([`crate::io::write_files_atomically`]).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use nalgebra::Point3;
+use serde_json::json;
+
+use crate::Real;
+use crate::align::{
+    AlignError, Dropped, FrontalStructure, GreyImage, PhotoPoints, RaslOptions, RaslPhoto, RaslResult,
+    procrustes_frontal, rasl_frontal,
+};
+use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
+use crate::export::{PngTexture, StepOptions, encode_glb, encode_png, encode_step};
+use crate::face::{ClippedMesh, Deformation, FaceError, FaceSurface, MeshOptions, Units};
+use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
+use crate::reference::ReferenceFace;
+use crate::render::{DepthMap, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png};
+use crate::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE};
+
+/// A photo's image: grey for alignment, colour for the texture.
+#[derive(Debug, Clone)]
+pub struct PhotoImage {
+    /// The grey image RASL aligns.
+    pub grey: GreyImage,
+    /// The colour image, for the texture.
+    pub colour: image::RgbImage,
+}
+
+impl PhotoImage {
+    /// Both forms of a decoded photo.
+    ///
+    /// # Errors
+    /// As [`GreyImage::from_dynamic`].
+    pub fn from_dynamic(image: &image::DynamicImage) -> Result<Self, crate::align::PhotoProblem> {
+        Ok(PhotoImage {
+            grey: GreyImage::from_dynamic(image)?,
+            colour: image.to_rgb8(),
+        })
+    }
+}
+
+/// One photo handed to [`reconstruct`]: its points and, unless points-only, its image.
+#[derive(Debug, Clone)]
+pub struct Input {
+    /// The 40 points, in the photo's pixels.
+    pub points: PhotoPoints,
+    /// The image, if any.
+    pub image: Option<PhotoImage>,
+}
+
+/// How [`reconstruct`] runs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PipelineOptions {
+    /// The depth stage's options.
+    pub depth: DepthOptions,
+    /// How the reference grid is deformed.
+    pub deformation: Deformation,
+    /// The clipped mesh's resolution.
+    pub mesh: MeshOptions,
+    /// Output units.
+    pub units: Units,
+    /// RASL's options.
+    pub rasl: RaslOptions,
+    /// The depth map's larger side, pixels.
+    pub depth_map_size: usize,
+}
+
+impl Default for PipelineOptions {
+    fn default() -> Self {
+        PipelineOptions {
+            depth: DepthOptions::default(),
+            deformation: Deformation::default(),
+            mesh: MeshOptions::default(),
+            units: Units::default(),
+            rasl: RaslOptions::default(),
+            depth_map_size: 512,
+        }
+    }
+}
+
+/// What can stop a reconstruction.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PipelineError {
+    /// Nothing to work with.
+    #[error("no usable photos")]
+    NoInputs,
+    /// The frontal structure could not be found.
+    #[error("frontal structure: {0}")]
+    Align(#[from] AlignError),
+    /// Depth estimation failed.
+    #[error("depth: {0}")]
+    Depth(#[from] DepthError),
+    /// The surface could not be made.
+    #[error("surface: {0}")]
+    Face(#[from] FaceError),
+    /// An output could not be encoded.
+    #[error("encoding {file}: {message}")]
+    Encode {
+        /// The output.
+        file: String,
+        /// Why.
+        message: String,
+    },
+}
+
+/// A finished reconstruction (canonical frame; [`Reconstruction::files`] converts units).
+#[derive(Debug, Clone)]
+pub struct Reconstruction {
+    /// The frontal structure used.
+    pub frontal: FrontalStructure,
+    /// RASL's result, when images were aligned.
+    pub rasl: Option<RaslResult>,
+    /// The 3D structure, poses and diagnostics.
+    pub depth: DepthEstimate,
+    /// The deformed surface.
+    pub face: FaceSurface,
+    /// Its clipped mesh.
+    pub mesh: ClippedMesh,
+    /// The textured mesh and its texture, from the most frontal photo, when images were given.
+    pub textured: Option<(TriangleMesh, image::RgbImage)>,
+    /// Photos left out, and why.
+    pub dropped: Vec<Dropped>,
+    /// Wall time per stage, seconds, in order.
+    pub timings: Vec<(String, Real)>,
+    /// The options used.
+    pub options: PipelineOptions,
+}
+
+/// Runs the stages (see the module documentation) on the inputs, in their order. Photos with
+/// images go through RASL when *every* input has an image; otherwise the run is points-only.
+///
+/// # Errors
+/// [`PipelineError::NoInputs`] for an empty list, else the failing stage's error.
+pub fn reconstruct(
+    inputs: &[Input],
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+    mut progress: impl FnMut(&str),
+) -> Result<Reconstruction, PipelineError> {
+    if inputs.is_empty() {
+        return Err(PipelineError::NoInputs);
+    }
+    let mut timings = Vec::new();
+    let with_images = inputs.iter().all(|i| i.image.is_some());
+    let start = Instant::now();
+    let (frontal, rasl, kept): (FrontalStructure, Option<RaslResult>, Vec<usize>) = if with_images {
+        progress(&format!(
+            "aligning {} photos and their mirror images (RASL)",
+            inputs.len()
+        ));
+        let photos: Vec<RaslPhoto> = inputs
+            .iter()
+            .map(|i| RaslPhoto {
+                image: i.image.as_ref().expect("checked above").grey.clone(),
+                points: i.points.clone(),
+            })
+            .collect();
+        let result = rasl_frontal(&photos, &options.rasl)?;
+        let kept: Vec<usize> = (0..inputs.len())
+            .filter(|&k| result.kept.contains(&inputs[k].points.name))
+            .collect();
+        (result.frontal.clone(), Some(result), kept)
+    } else {
+        progress(&format!(
+            "frontal structure from the points of {} photos",
+            inputs.len()
+        ));
+        let points: Vec<PhotoPoints> = inputs.iter().map(|i| i.points.clone()).collect();
+        (procrustes_frontal(&points)?, None, (0..inputs.len()).collect())
+    };
+    timings.push(("frontal structure".to_owned(), start.elapsed().as_secs_f64()));
+    let dropped = rasl.as_ref().map(|r| r.dropped.clone()).unwrap_or_default();
+
+    progress("estimating depth and poses");
+    let start = Instant::now();
+    let points: Vec<PhotoPoints> = kept.iter().map(|&k| inputs[k].points.clone()).collect();
+    let prior = StructurePrior::from_reference(reference);
+    let depth = estimate_depth(&points, &frontal, &prior, &options.depth)?;
+    timings.push(("depth".to_owned(), start.elapsed().as_secs_f64()));
+
+    progress("deforming the reference surface and meshing the face");
+    let start = Instant::now();
+    let face = FaceSurface::deform(reference, &depth.structure, options.deformation)?;
+    let mesh = face.mesh(&options.mesh)?;
+    let textured = if with_images {
+        depth.most_frontal_photo().map(|k| {
+            let colour = &inputs[kept[k]].image.as_ref().expect("images").colour;
+            (
+                mesh.photo_texture(&depth.photos[k], colour.width(), colour.height()),
+                colour.clone(),
+            )
+        })
+    } else {
+        None
+    };
+    timings.push(("surface".to_owned(), start.elapsed().as_secs_f64()));
+    Ok(Reconstruction {
+        frontal,
+        rasl,
+        depth,
+        face,
+        mesh,
+        textured,
+        dropped,
+        timings,
+        options: *options,
+    })
+}
+
+fn encode_error(file: &str) -> impl Fn(String) -> PipelineError + '_ {
+    move |message| PipelineError::Encode {
+        file: file.to_owned(),
+        message,
+    }
+}
+
+impl Reconstruction {
+    /// The structure in output units.
+    pub fn structure(&self) -> Vec<Point3<Real>> {
+        let scale = self.options.units.per_canonical_unit();
+        self.depth.structure.iter().map(|p| p * scale).collect()
+    }
+
+    /// The face mesh in output units (untextured).
+    pub fn output_mesh(&self) -> TriangleMesh {
+        self.mesh.mesh.transformed(&self.options.units.transform())
+    }
+
+    /// Every output file, as `(path relative to the output directory, bytes)`: see the module
+    /// documentation.
+    ///
+    /// # Errors
+    /// [`PipelineError::Encode`] naming the output that could not be encoded.
+    pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
+        let start = Instant::now();
+        let units = self.options.units;
+        let to_units = units.transform();
+        let scale = units.per_canonical_unit();
+        let mesh = self.output_mesh();
+        let surface = self.face.surface().transformed(&to_units);
+        let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+
+        // Meshes.
+        match &self.textured {
+            Some((textured, colour)) => {
+                let png = encode_png(colour).map_err(encode_error("face.png"))?;
+                let textured = textured.transformed(&to_units);
+                let obj = crate::mesh::format_obj_with_material(&textured, Some(("face.mtl", "face")));
+                files.push(("face.obj".into(), obj.into_bytes()));
+                files.push((
+                    "face.mtl".into(),
+                    b"# written by splineface\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd face.png\n"
+                        .to_vec(),
+                ));
+                files.push((
+                    "face.glb".into(),
+                    encode_glb(&textured, "face", Some(PngTexture { png: &png })),
+                ));
+                files.push(("face.png".into(), png));
+            }
+            None => {
+                files.push(("face.obj".into(), crate::mesh::format_obj(&mesh).into_bytes()));
+                files.push(("face.glb".into(), encode_glb(&mesh, "face", None)));
+            }
+        }
+        files.push((
+            "face.ply".into(),
+            encode_ply(&mesh, PlyEncoding::BinaryLittleEndian),
+        ));
+
+        // The exact surface.
+        files.push(("surface.json".into(), surface.to_json().into_bytes()));
+        let outline: Vec<Point3<Real>> = self
+            .face
+            .clip()
+            .iter()
+            .filter_map(|p| surface.eval(p.x, p.y).ok())
+            .collect();
+        let description = match units {
+            Units::Millimetres { eye_distance } => {
+                format!("splineface face, millimetres ({eye_distance} mm between the eye centres), x right, y up, z toward the viewer")
+            }
+            Units::Canonical => "splineface face, canonical units (50 between the eye centres), x right, y up, z toward the viewer".to_owned(),
+        };
+        let step = encode_step(
+            &surface,
+            &StepOptions {
+                name: "face",
+                description: &description,
+                millimetres: matches!(units, Units::Millimetres { .. }),
+                outline: &outline,
+            },
+        );
+        files.push(("surface.step".into(), step.into_bytes()));
+
+        // The depth map, from the front.
+        let size = self.options.depth_map_size;
+        let view = View::front();
+        let (lo, hi) = mesh.positions().iter().fold(
+            (
+                Point3::from([Real::INFINITY; 3]),
+                Point3::from([Real::NEG_INFINITY; 3]),
+            ),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+        let aspect = (hi.y - lo.y) / (hi.x - lo.x).max(Real::MIN_POSITIVE);
+        let (w, h) = if aspect >= 1.0 {
+            (((size as Real) / aspect).round().max(1.0) as usize, size)
+        } else {
+            (size, ((size as Real) * aspect).round().max(1.0) as usize)
+        };
+        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)
+            .map_err(encode_error("depth.exr"))?;
+        let map = DepthMap::render(&mesh, &view, &raster);
+        let exr = encode_depth_exr(&map).map_err(|e| encode_error("depth.exr")(e.to_string()))?;
+        let png = encode_depth_png(&map).map_err(|e| encode_error("depth.png")(e.to_string()))?;
+        let preview = shaded_png(&map).map_err(|e| encode_error("preview.png")(e.to_string()))?;
+        files.push(("depth.exr".into(), exr));
+        files.push(("depth.png".into(), png));
+        files.push(("preview.png".into(), preview));
+
+        // RASL's pictures.
+        if let Some(rasl) = &self.rasl {
+            for (name, bytes) in rasl.images().map_err(encode_error("aligned/"))? {
+                files.push((PathBuf::from("aligned").join(name), bytes));
+            }
+        }
+
+        // structure.json and report.json.
+        let structure = self.structure();
+        let point = |p: &Point3<Real>| json!([p.x, p.y, p.z]);
+        let photos: Vec<serde_json::Value> = self
+            .depth
+            .photos
+            .iter()
+            .map(|p| {
+                let [yaw, pitch, roll] = p.pose.yaw_pitch_roll_degrees();
+                json!({
+                    "name": p.name,
+                    "yaw_degrees": yaw,
+                    "pitch_degrees": pitch,
+                    "roll_degrees": roll,
+                    "pixels_per_unit": p.pose.scale / scale,
+                    "rms_pixels": p.rms_pixels,
+                    "rms_units": p.rms_units * scale,
+                })
+            })
+            .collect();
+        let structure_json = json!({
+            "format": "splineface/structure",
+            "version": 1,
+            "units": units.name(),
+            "per_canonical_unit": scale,
+            "frame": "x to the image's right, y up, z toward the viewer, origin between the eye centres",
+            "points": structure.iter().map(point).collect::<Vec<_>>(),
+            "eye_centres": { "right": point(&structure[RIGHT_EYE_CENTRE]), "left": point(&structure[LEFT_EYE_CENTRE]) },
+            "photos": photos,
+            "similarity": self.depth.similarity,
+        });
+        files.push((
+            "structure.json".into(),
+            serde_json::to_vec_pretty(&structure_json)
+                .map_err(|e| encode_error("structure.json")(e.to_string()))?,
+        ));
+        let mut timings: Vec<serde_json::Value> = self
+            .timings
+            .iter()
+            .map(|(stage, s)| json!({ "stage": stage, "ms": 1e3 * s }))
+            .collect();
+        timings.push(json!({ "stage": "outputs (encoding)", "ms": 1e3 * start.elapsed().as_secs_f64() }));
+        let report = self.face.report();
+        let report_json = json!({
+            "format": "splineface/report",
+            "version": 1,
+            "frontal_method": format!("{:?}", self.frontal.method),
+            "frontal_residual_rms_units": self.frontal.residual_rms,
+            "timings": timings,
+            "photos_used": self.depth.photos.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
+            "photos_dropped": self.dropped.iter().map(|d| json!({ "name": d.name, "reason": d.reason })).collect::<Vec<_>>(),
+            "warnings": self.depth.warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
+            "depth": {
+                "iterations": self.depth.iterations,
+                "converged": self.depth.converged,
+                "objective": self.depth.objective,
+                "similarity": self.depth.similarity,
+            },
+            "rasl": self.rasl.as_ref().map(|r| json!({
+                "outer_iterations": r.objective.len(),
+                "inner_iterations": r.inner_iterations,
+                "objective": r.objective,
+                "seconds": r.seconds,
+            })),
+            "surface": {
+                "deformation": format!("{:?}", self.face.deformation()),
+                "displacement_rms_units": report.displacement_rms,
+                "displacement_max_units": report.displacement_max,
+                "point_rms_units": report.point_rms,
+                "mesh_vertices": mesh.positions().len(),
+                "mesh_triangles": mesh.triangles().len(),
+                "textured": self.textured.is_some(),
+            },
+        });
+        files.push((
+            "report.json".into(),
+            serde_json::to_vec_pretty(&report_json)
+                .map_err(|e| encode_error("report.json")(e.to_string()))?,
+        ));
+        Ok(files)
+    }
+}
