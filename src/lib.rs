@@ -50,6 +50,7 @@ pub mod depth;
 pub mod export;
 pub mod face;
 pub mod io;
+pub mod landmarker;
 pub mod landmarks;
 pub mod mesh;
 pub mod pipeline;

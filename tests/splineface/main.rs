@@ -14,6 +14,7 @@ mod compare;
 mod depth;
 mod export;
 mod face;
+mod landmarker;
 mod landmarks;
 mod mesh;
 mod mesh_closest;

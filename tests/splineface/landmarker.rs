@@ -1,0 +1,200 @@
+//! The dlib shape_predictor runtime: damaged files are errors; with `../shared`, the peer's
+//! fixture is reproduced.
+
+use std::path::Path;
+
+use splineface::landmarker::{FaceBox, Intensity, ModelProblem, ShapePredictor};
+
+/// dlib's integer encoding.
+fn int(out: &mut Vec<u8>, value: i64) {
+    let (neg, mut magnitude) = (value < 0, value.unsigned_abs());
+    let mut body = Vec::new();
+    loop {
+        body.push((magnitude & 0xff) as u8);
+        magnitude >>= 8;
+        if magnitude == 0 {
+            break;
+        }
+    }
+    out.push(body.len() as u8 | if neg { 0x80 } else { 0 });
+    out.extend(body);
+}
+
+/// dlib's float encoding, exact for values with few bits.
+fn float(out: &mut Vec<u8>, value: f32) {
+    let exponent = -16;
+    let mantissa = (f64::from(value) * 65536.0).round() as i64;
+    int(out, mantissa);
+    int(out, exponent);
+}
+
+fn column(out: &mut Vec<u8>, values: &[f32]) {
+    int(out, -(values.len() as i64));
+    int(out, -1);
+    for &v in values {
+        float(out, v);
+    }
+}
+
+/// A two-point model with one cascade of one tree of depth 1 that moves both points by
+/// (+0.25, 0) when pixel A is brighter than pixel B by more than 10, else by (−0.25, 0).
+fn tiny_model() -> Vec<u8> {
+    let mut m = Vec::new();
+    int(&mut m, 1);
+    column(&mut m, &[0.25, 0.5, 0.75, 0.5]);
+    int(&mut m, 1); // cascades
+    int(&mut m, 1); // trees
+    int(&mut m, 1); // splits
+    int(&mut m, 0);
+    int(&mut m, 1);
+    float(&mut m, 10.0);
+    int(&mut m, 2); // leaves
+    column(&mut m, &[0.25, 0.0, 0.25, 0.0]);
+    column(&mut m, &[-0.25, 0.0, -0.25, 0.0]);
+    int(&mut m, 1); // anchor sets
+    int(&mut m, 2);
+    int(&mut m, 0);
+    int(&mut m, 1);
+    int(&mut m, 1); // delta sets
+    int(&mut m, 2);
+    float(&mut m, 0.0);
+    float(&mut m, 0.0);
+    float(&mut m, 0.0);
+    float(&mut m, 0.0);
+    m
+}
+
+#[test]
+fn a_hand_made_model_runs_as_specified() {
+    let model = ShapePredictor::parse(&tiny_model()).unwrap();
+    assert_eq!(model.points(), 2);
+    // Box (10, 20)–(50, 60): the mean shape's points land at (20, 40) and (40, 40).
+    let face = FaceBox::from_size(10, 20, 41, 41);
+    for (left_bright, shift) in [(true, 0.25), (false, -0.25)] {
+        let image = image::RgbImage::from_fn(64, 64, |x, _| {
+            let bright = if x < 30 { left_bright } else { !left_bright };
+            image::Rgb(if bright { [200, 100, 0] } else { [10, 20, 30] })
+        });
+        let points = model.predict(&Intensity::from_rgb(&image), face);
+        let expected = [(20.0 + 40.0 * shift, 40.0), (40.0 + 40.0 * shift, 40.0)];
+        for (p, e) in points.iter().zip(expected) {
+            assert!(
+                (p.x - e.0).abs() < 1e-4 && (p.y - e.1).abs() < 1e-4,
+                "{p} vs {e:?}"
+            );
+        }
+    }
+}
+
+#[test]
+fn damaged_models_are_errors() {
+    let good = tiny_model();
+    for cut in [0, 1, 5, good.len() / 2, good.len() - 1] {
+        assert!(
+            matches!(
+                ShapePredictor::parse(&good[..cut]),
+                Err(ModelProblem::Truncated(_) | ModelProblem::Malformed { .. })
+            ),
+            "cut at {cut}"
+        );
+    }
+    // A length claiming 10¹² items is refused before allocating.
+    let mut huge = Vec::new();
+    int(&mut huge, 1);
+    column(&mut huge, &[0.25, 0.5]);
+    int(&mut huge, 1_000_000_000_000);
+    assert!(matches!(
+        ShapePredictor::parse(&huge),
+        Err(ModelProblem::Malformed { .. })
+    ));
+    // Another version.
+    let mut other = good.clone();
+    other[1] = 2;
+    assert!(ShapePredictor::parse(&other).is_err());
+    // A bad control byte.
+    let mut bad = good.clone();
+    bad[0] = 0x7f;
+    assert!(ShapePredictor::parse(&bad).is_err());
+    let missing = ShapePredictor::read(Path::new("/nonexistent/model.dat")).unwrap_err();
+    assert!(missing.to_string().contains("model.dat"));
+}
+
+/// The boxes and dlib's own 68 points from the fixture's XML.
+fn fixture(xml: &str) -> Vec<(String, FaceBox, Vec<(f64, f64)>)> {
+    let attribute = |tag: &str, name: &str| -> Option<String> {
+        let start = tag.find(&format!("{name}='"))? + name.len() + 2;
+        let end = tag[start..].find('\'')? + start;
+        Some(tag[start..end].to_owned())
+    };
+    let mut faces = Vec::new();
+    let mut file = String::new();
+    let mut current: Option<(FaceBox, Vec<(f64, f64)>)> = None;
+    for line in xml.lines().map(str::trim) {
+        if line.starts_with("<image ") {
+            file = attribute(line, "file").unwrap();
+        } else if line.starts_with("<box ") {
+            let n = |k| attribute(line, k).unwrap().parse::<i64>().unwrap();
+            current = Some((
+                FaceBox::from_size(n("left"), n("top"), n("width"), n("height")),
+                Vec::new(),
+            ));
+        } else if line.starts_with("<part ") {
+            let n = |k| attribute(line, k).unwrap().parse::<f64>().unwrap();
+            current.as_mut().unwrap().1.push((n("x"), n("y")));
+        } else if line.starts_with("</box>") {
+            let (face, parts) = current.take().unwrap();
+            faces.push((file.clone(), face, parts));
+        }
+    }
+    faces
+}
+
+#[test]
+#[ignore = "needs ../shared (the model and dlib's fixture)"]
+fn dlibs_own_points_are_reproduced() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let start = std::time::Instant::now();
+    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
+    let load = start.elapsed();
+    assert_eq!(model.points(), 68);
+    let dir = shared.join("data/dlib-faces");
+    let mut errors = Vec::new();
+    let mut elapsed = std::time::Duration::ZERO;
+    let mut exact = 0usize;
+    for xml in [
+        "training_with_face_landmarks.xml",
+        "testing_with_face_landmarks.xml",
+    ] {
+        let text = std::fs::read_to_string(dir.join(xml)).unwrap();
+        for (file, face, parts) in fixture(&text) {
+            let image = image::open(dir.join(&file)).unwrap().to_rgb8();
+            let intensity = Intensity::from_rgb(&image);
+            let t = std::time::Instant::now();
+            let points = model.predict(&intensity, face);
+            elapsed += t.elapsed();
+            let mean = points
+                .iter()
+                .zip(&parts)
+                .map(|(p, q)| ((p.x - q.0).powi(2) + (p.y - q.1).powi(2)).sqrt())
+                .sum::<f64>()
+                / 68.0;
+            exact += points
+                .iter()
+                .zip(&parts)
+                .filter(|(p, q)| p.x.round() == q.0 && p.y.round() == q.1)
+                .count();
+            errors.push((file, mean));
+        }
+    }
+    let overall = errors.iter().map(|e| e.1).sum::<f64>() / errors.len() as f64;
+    println!(
+        "{} faces: mean error {overall:.3} px (worst {:.3}), {:.1}% of the points exact after rounding; model load {:.2} s, {:.2} ms a face",
+        errors.len(),
+        errors.iter().map(|e| e.1).fold(0.0, f64::max),
+        100.0 * exact as f64 / (68 * errors.len()) as f64,
+        load.as_secs_f64(),
+        1e3 * elapsed.as_secs_f64() / errors.len() as f64
+    );
+    assert!(errors.len() >= 10);
+    assert!(overall < 1.0, "mean error {overall} px: {errors:?}");
+}
