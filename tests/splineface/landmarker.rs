@@ -119,8 +119,11 @@ fn damaged_models_are_errors() {
     assert!(missing.to_string().contains("model.dat"));
 }
 
+/// One face of the fixture: the image file, the box, dlib's 68 points.
+type FixtureFace = (String, FaceBox, Vec<(f64, f64)>);
+
 /// The boxes and dlib's own 68 points from the fixture's XML.
-fn fixture(xml: &str) -> Vec<(String, FaceBox, Vec<(f64, f64)>)> {
+fn fixture(xml: &str) -> Vec<FixtureFace> {
     let attribute = |tag: &str, name: &str| -> Option<String> {
         let start = tag.find(&format!("{name}='"))? + name.len() + 2;
         let end = tag[start..].find('\'')? + start;
