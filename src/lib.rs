@@ -47,6 +47,7 @@ pub mod bspline;
 pub mod compare;
 pub mod demo;
 pub mod depth;
+pub mod detect;
 pub mod export;
 pub mod face;
 pub mod io;

@@ -80,6 +80,11 @@ enum Command {
         /// A reference face file (default: the embedded ICT mean face).
         #[arg(long)]
         reference: Option<PathBuf>,
+        /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
+        /// downloads it) for photos without a landmark file: faces are then detected and
+        /// landmarked. Default: $SPLINEFACE_LANDMARK_MODEL.
+        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
+        landmark_model: Option<PathBuf>,
         /// The directory to write into (created if missing).
         #[arg(long)]
         out: PathBuf,
@@ -254,6 +259,7 @@ fn run(cli: Cli) -> Result<()> {
             photo_dir,
             landmarks,
             reference,
+            landmark_model,
             out,
             output,
         } => reconstruct_command(
@@ -261,6 +267,7 @@ fn run(cli: Cli) -> Result<()> {
             photo_dir.as_deref(),
             landmarks.as_deref(),
             reference.as_deref(),
+            landmark_model.as_deref(),
             &out,
             &output,
         ),
@@ -674,10 +681,18 @@ fn reconstruct_command(
     photo_dir: Option<&Path>,
     landmark_dir: Option<&Path>,
     reference_path: Option<&Path>,
+    landmark_model: Option<&Path>,
     out: &Path,
     output: &OutputArgs,
 ) -> Result<()> {
     let options = output.options()?;
+    let predictor = match landmark_model {
+        Some(path) => {
+            progress(&format!("reading the landmark model {}", path.display()));
+            Some(splineface::landmarker::ShapePredictor::read(path)?)
+        }
+        None => None,
+    };
     if out.exists() && !out.is_dir() {
         bail!("{}: exists and is not a directory", out.display());
     }
@@ -701,6 +716,7 @@ fn reconstruct_command(
     }
     let mut inputs = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
+    let mut warnings: Vec<String> = Vec::new();
     if photo_paths.is_empty() {
         let Some(dir) = landmark_dir else {
             bail!(
@@ -719,44 +735,61 @@ fn reconstruct_command(
             });
         }
     } else {
-        let Some(dir) = landmark_dir else {
+        if landmark_dir.is_none() && predictor.is_none() {
             bail!(
-                "no --landmarks directory: face detection and the 68-point landmarker are not in this build yet, \
-                 so each photo needs a landmark file (STEM.pts or STEM.json)"
+                "the photos need landmarks: give --landmarks DIR (a STEM.pts or STEM.json per photo) or \
+                 --landmark-model PATH (dlib's shape_predictor_68_face_landmarks.dat, see tools/fetch-models) \
+                 to detect and landmark the faces"
             );
-        };
+        }
         progress(&format!("reading {} photos", photo_paths.len()));
         for path in &photo_paths {
             let stem = path
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
-            let Some(file) = landmark_file(dir, &stem) else {
-                skipped.push(format!(
-                    "{}: no landmark file {stem}.pts or {stem}.json in {}",
-                    path.display(),
-                    dir.display()
-                ));
-                continue;
+            let file = landmark_dir.and_then(|dir| landmark_file(dir, &stem));
+            let decoded = match GreyImage::read(path) {
+                Err(e) => Err(e.to_string()),
+                Ok(_) => image::open(path).map_err(|e| format!("{}: {e}", path.display())),
             };
-            let points = read_photo_points(&file)?;
-            let image = match GreyImage::read(path) {
+            let decoded = match decoded {
+                Ok(d) => d,
                 Err(e) => {
-                    skipped.push(e.to_string());
+                    skipped.push(e);
                     continue;
                 }
-                Ok(_) => image::open(path)
-                    .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
-                    .and_then(|d| {
-                        PhotoImage::from_dynamic(&d).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
-                    }),
             };
-            match image {
+            let points = match (file, &predictor) {
+                (Some(file), _) => read_photo_points(&file)?,
+                (None, Some(model)) => match find_landmarks(model, &decoded, &stem) {
+                    Ok((points, note)) => {
+                        if let Some(note) = note {
+                            progress(&format!("{}: {note}", path.display()));
+                            warnings.push(format!("{}: {note}", path.display()));
+                        }
+                        points
+                    }
+                    Err(reason) => {
+                        skipped.push(format!("{}: {reason}", path.display()));
+                        continue;
+                    }
+                },
+                (None, None) => {
+                    skipped.push(format!(
+                        "{}: no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
+                        path.display(),
+                        landmark_dir.map_or_else(String::new, |d| d.display().to_string())
+                    ));
+                    continue;
+                }
+            };
+            match PhotoImage::from_dynamic(&decoded) {
                 Ok(image) => inputs.push(Input {
                     points: PhotoPoints { name: stem, ..points },
                     image: Some(image),
                 }),
-                Err(e) => skipped.push(e.to_string()),
+                Err(e) => skipped.push(format!("{}: {e}", path.display())),
             }
         }
         for s in &skipped {
@@ -769,11 +802,14 @@ fn reconstruct_command(
     let start = std::time::Instant::now();
     let result = reconstruct(&inputs, &reference, &options, progress)?;
     let mut files = result.files()?;
-    if !skipped.is_empty() {
-        // Record the skipped photos in the report.
+    if !skipped.is_empty() || !warnings.is_empty() {
+        // Record the skipped photos and detection warnings in the report.
         if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
             let mut report: serde_json::Value = serde_json::from_slice(bytes)?;
             report["photos_skipped"] = skipped.clone().into();
+            if let Some(list) = report["warnings"].as_array_mut() {
+                list.extend(warnings.iter().map(|w| serde_json::Value::from(w.as_str())));
+            }
             *bytes = serde_json::to_vec_pretty(&report)?;
         }
     }
@@ -981,4 +1017,29 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     println!("  heatmap    {}/compare/heatmap.png", out.display());
     println!("  time       {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
+}
+
+/// Detects the faces in a photo and landmarks the largest: its 40 points, and a note when there
+/// were several faces.
+fn find_landmarks(
+    model: &splineface::landmarker::ShapePredictor,
+    image: &image::DynamicImage,
+    name: &str,
+) -> std::result::Result<(PhotoPoints, Option<String>), String> {
+    use splineface::detect::{detect_faces, landmark_box};
+    let faces = detect_faces(&image.to_luma8());
+    let Some(largest) = faces.first() else {
+        return Err("no face found".to_owned());
+    };
+    let note = (faces.len() > 1).then(|| format!("{} faces found; the largest is used", faces.len()));
+    let intensity = splineface::landmarker::Intensity::from_rgb(&image.to_rgb8());
+    let ibug = model.predict(&intensity, landmark_box(largest));
+    if ibug.len() != 68 {
+        return Err(format!(
+            "the landmark model gives {} points, not the 68 of iBUG",
+            ibug.len()
+        ));
+    }
+    let points = PhotoPoints::from_ibug68(name, &ibug).map_err(|e| e.to_string())?;
+    Ok((points, note))
 }

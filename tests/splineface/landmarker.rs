@@ -201,3 +201,94 @@ fn dlibs_own_points_are_reproduced() {
     assert!(errors.len() >= 10);
     assert!(overall < 1.0, "mean error {overall} px: {errors:?}");
 }
+
+fn iou(a: &FaceBox, b: &FaceBox) -> f64 {
+    let w = (a.right.min(b.right) - a.left.max(b.left) + 1).max(0);
+    let h = (a.bottom.min(b.bottom) - a.top.max(b.top) + 1).max(0);
+    let area = |r: &FaceBox| (r.right - r.left + 1) * (r.bottom - r.top + 1);
+    let inter = (w * h) as f64;
+    inter / ((area(a) + area(b)) as f64 - inter).max(1.0)
+}
+
+/// Detection on dlib's fixture: every face dlib found is found, the calibrated boxes give
+/// dlib's points, the dogs have no face and the bald guys many.
+#[test]
+#[ignore = "needs ../shared (the model and dlib's fixture)"]
+fn detection_and_landmarks_on_the_fixture() {
+    use splineface::detect::{BOX_CALIBRATION, detect_faces, landmark_box};
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
+    let dir = shared.join("data/dlib-faces");
+    let mut pairs = Vec::new();
+    let (mut found, mut total) = (0, 0);
+    let mut errors = (Vec::new(), Vec::new());
+    let mut detect_time = std::time::Duration::ZERO;
+    for xml in [
+        "training_with_face_landmarks.xml",
+        "testing_with_face_landmarks.xml",
+    ] {
+        let text = std::fs::read_to_string(dir.join(xml)).unwrap();
+        for (file, face, parts) in fixture(&text) {
+            total += 1;
+            let image = image::open(dir.join(&file)).unwrap();
+            let t = std::time::Instant::now();
+            let detections = detect_faces(&image.to_luma8());
+            detect_time += t.elapsed();
+            let Some(best) = detections
+                .iter()
+                .max_by(|a, b| iou(&a.bbox, &face).total_cmp(&iou(&b.bbox, &face)))
+                .filter(|d| iou(&d.bbox, &face) > 0.3)
+            else {
+                continue;
+            };
+            found += 1;
+            pairs.push((best.bbox, face));
+            let intensity = Intensity::from_rgb(&image.to_rgb8());
+            let error = |points: Vec<nalgebra::Point2<f64>>| {
+                points
+                    .iter()
+                    .zip(&parts)
+                    .map(|(p, q)| ((p.x - q.0).powi(2) + (p.y - q.1).powi(2)).sqrt())
+                    .sum::<f64>()
+                    / 68.0
+                    / (face.right - face.left + 1) as f64
+            };
+            errors.0.push(error(model.predict(&intensity, best.bbox)));
+            errors
+                .1
+                .push(error(model.predict(&intensity, landmark_box(best))));
+        }
+    }
+    // The calibration that would fit these pairs best.
+    let n = pairs.len() as f64;
+    let mut fit = [0.0; 4];
+    for (s, d) in &pairs {
+        let (w, h) = ((s.right - s.left + 1) as f64, (s.bottom - s.top + 1) as f64);
+        fit[0] += (d.left - s.left) as f64 / w / n;
+        fit[1] += (d.top - s.top) as f64 / h / n;
+        fit[2] += (d.right - d.left + 1) as f64 / w / n;
+        fit[3] += (d.bottom - d.top + 1) as f64 / h / n;
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    println!(
+        "detected {found} of {total} fixture faces ({:.1} ms an image); best calibration {fit:?} (in use {BOX_CALIBRATION:?}); \
+         landmark error / box width: raw boxes {:.4}, calibrated {:.4}",
+        1e3 * detect_time.as_secs_f64() / total as f64,
+        mean(&errors.0),
+        mean(&errors.1)
+    );
+    let dogs = detect_faces(&image::open(dir.join("dogs.jpg")).unwrap().to_luma8());
+    let bald = detect_faces(&image::open(dir.join("bald_guys.jpg")).unwrap().to_luma8());
+    println!(
+        "dogs.jpg: {} faces; bald_guys.jpg: {} faces",
+        dogs.len(),
+        bald.len()
+    );
+    assert!(found as f64 >= 0.9 * total as f64);
+    assert!(
+        mean(&errors.1) < 0.037,
+        "calibrated landmark error {:.4} of the box width",
+        mean(&errors.1)
+    );
+    assert!(bald.len() >= 5);
+}

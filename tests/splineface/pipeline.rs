@@ -352,3 +352,56 @@ fn reconstruct_refuses_bad_input() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Photos without landmark files are detected and landmarked with dlib's model: a photo with
+/// no face is skipped and reported, one with many faces uses the largest and says so.
+#[test]
+#[ignore = "needs ../shared (dlib's model and photos)"]
+fn reconstruct_detects_and_landmarks_faces() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let dir = scratch("detect");
+    let photos = dir.join("photos");
+    std::fs::create_dir_all(&photos).unwrap();
+    for name in [
+        "Tom_Cruise_avp_2014_4.jpg",
+        "2008_002470.jpg",
+        "bald_guys.jpg",
+        "dogs.jpg",
+    ] {
+        std::fs::copy(shared.join("data/dlib-faces").join(name), photos.join(name)).unwrap();
+    }
+    let out = dir.join("out");
+    let model = shared.join("models/shape_predictor_68_face_landmarks.dat");
+    let run = splineface(&[
+        "reconstruct",
+        "--photos",
+        &s(&photos),
+        "--landmark-model",
+        &s(&model),
+        "--out",
+        &s(&out),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(stderr.contains("dogs.jpg: no face found"), "{stderr}");
+    assert!(stderr.contains("the largest is used"), "{stderr}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["photos_used"].as_array().unwrap().len(), 3, "{report}");
+    assert!(report["photos_skipped"][0].as_str().unwrap().contains("dogs.jpg"));
+    assert!(out.join("face.glb").is_file());
+    // A model file that is not one.
+    let bad = splineface(&[
+        "reconstruct",
+        "--photos",
+        &s(&photos),
+        "--landmark-model",
+        &s(&photos.join("dogs.jpg")),
+        "--out",
+        &s(&dir.join("bad")),
+    ]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("dogs.jpg"));
+    assert!(!dir.join("bad").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
