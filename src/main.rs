@@ -225,7 +225,11 @@ impl OutputArgs {
 }
 
 fn main() -> ExitCode {
-    match run(Cli::parse()) {
+    let result = run(Cli::parse());
+    if let Some(Some(bar)) = BAR.get() {
+        bar.finish_and_clear();
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("error: {error:#}");
@@ -672,8 +676,34 @@ fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
     write_files(&absolute)
 }
 
+/// The progress display: a spinner with the current stage when standard error is a terminal,
+/// plain lines otherwise (logs, pipes, tests).
+static BAR: std::sync::OnceLock<Option<indicatif::ProgressBar>> = std::sync::OnceLock::new();
+
+fn progress_bar() -> Option<&'static indicatif::ProgressBar> {
+    use std::io::IsTerminal;
+    BAR.get_or_init(|| {
+        std::io::stderr().is_terminal().then(|| {
+            let bar = indicatif::ProgressBar::new_spinner();
+            bar.set_style(
+                indicatif::ProgressStyle::with_template("{spinner} [{elapsed}] {msg}")
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_spinner()),
+            );
+            bar.enable_steady_tick(std::time::Duration::from_millis(100));
+            bar
+        })
+    })
+    .as_ref()
+}
+
 fn progress(message: &str) {
-    eprintln!("splineface: {message}");
+    match progress_bar() {
+        Some(bar) => {
+            bar.println(format!("splineface: {message}"));
+            bar.set_message(message.to_owned());
+        }
+        None => eprintln!("splineface: {message}"),
+    }
 }
 
 fn reconstruct_command(
