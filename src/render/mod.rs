@@ -18,7 +18,9 @@ pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
 pub use raster::render_heights;
-pub use write::{DepthFileError, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png};
+pub use write::{
+    DepthFileError, draw_text, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis,
+};
 
 /// A viewing direction: the rotation applied to the mesh before looking along `−z`.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -17,6 +17,21 @@ pub struct SyntheticPhoto {
     pub image: GreyImage,
     /// The structure points as the photo sees them (hidden ones included).
     pub points: Vec<Point2<Real>>,
+    /// The view it was taken from.
+    pub view: View,
+    /// Where its pixels lie on the view's plane.
+    pub raster: crate::mesh::Raster,
+}
+
+impl SyntheticPhoto {
+    /// Where the photo sees a point of the mesh's frame, in its pixels (`y` down).
+    pub fn project(&self, p: &Point3<Real>) -> Point2<Real> {
+        let q = self.view.apply(p);
+        Point2::new(
+            (q.x - self.raster.origin.x) / self.raster.spacing,
+            (self.raster.height - 1) as Real - (q.y - self.raster.origin.y) / self.raster.spacing,
+        )
+    }
 }
 
 /// Renders `mesh` (whose 40-point structure is `structure`) seen from `view`, framed in
@@ -83,5 +98,10 @@ pub fn synthetic_photo(
         }
     }
     let image = GreyImage::new(width, height, data).map_err(|e| e.to_string())?;
-    Ok(SyntheticPhoto { image, points })
+    Ok(SyntheticPhoto {
+        image,
+        points,
+        view: *view,
+        raster,
+    })
 }

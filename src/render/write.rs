@@ -173,7 +173,10 @@ fn glyph(c: char) -> Option<[u8; 5]> {
     })
 }
 
-fn draw_text(image: &mut image::RgbImage, text: &str, x: u32, y: u32, scale: u32) {
+/// Draws `text` in white with a 3 × 5 bitmap font (digits, `.`, `-`, `m` and spaces; other
+/// characters are skipped) at `(x, y)`, each font pixel `scale` image pixels: labels for
+/// heatmaps and plots without a font file.
+pub fn draw_text(image: &mut image::RgbImage, text: &str, x: u32, y: u32, scale: u32) {
     let mut cursor = x;
     for c in text.chars() {
         let Some(rows) = glyph(c) else { continue };

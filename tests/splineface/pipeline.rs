@@ -405,3 +405,52 @@ fn reconstruct_detects_and_landmarks_faces() {
     assert!(!dir.join("bad").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The evaluation harness end to end, in its quick setting (about a minute once built).
+#[test]
+#[ignore = "needs ../shared (ICT-FaceKit) and builds the eval tool in release"]
+fn the_evaluation_harness_runs() {
+    let dir = scratch("eval");
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".to_owned());
+    let run = Command::new(cargo)
+        .args([
+            "run",
+            "--quiet",
+            "--release",
+            "--example",
+            "eval",
+            "--",
+            "--quick",
+            "--out",
+            &s(&dir),
+        ])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .unwrap();
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let page = std::fs::read_to_string(dir.join("evaluation.md")).unwrap();
+    for heading in ["## Table 1", "## Fig. 8(3)", "## Table 2", "### Subject 2"] {
+        assert!(page.contains(heading), "{heading} missing");
+    }
+    assert!(page.contains("cargo run --release --example eval -- --quick"));
+    let plot = image::open(dir.join("error-vs-photos.png")).unwrap();
+    assert_eq!((plot.width(), plot.height()), (640, 400));
+    // The default beats the mean face on the mean depth error, subject by subject.
+    let mean_of = |name: &str| -> f64 {
+        let line = page
+            .lines()
+            .find(|l| l.starts_with(&format!("| {name}")))
+            .unwrap();
+        line.split('|')
+            .nth(2)
+            .unwrap()
+            .split('±')
+            .next()
+            .unwrap()
+            .trim()
+            .parse()
+            .unwrap()
+    };
+    assert!(mean_of("**default**") < mean_of("mean face"), "{page}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
