@@ -365,7 +365,11 @@ fn svt_pixel_major(t: &[f32], n: usize, threshold: Real, out: &mut [f32]) -> (Re
             g.gemm(1.0, &x, &xt, 0.0);
             g
         })
-        .reduce(|| DMatrix::<f32>::zeros(n, n), |a, b| a + b);
+        .collect::<Vec<_>>()
+        // Summed in chunk order, not by rayon's reduce, whose order follows the threads: the
+        // same input gives the same bits on any number of threads.
+        .into_iter()
+        .fold(DMatrix::<f32>::zeros(n, n), |a, b| a + b);
     let gram: DMatrix<Real> = gram32.map(Real::from);
     let eigen = gram.symmetric_eigen();
     // The kept singular vectors: A = V_r·diag(w)·V_rᵀ·T with wₖ = (σₖ − threshold)/σₖ, as two
@@ -740,17 +744,16 @@ fn inner_loop(
                     .map(|p| p.map(Real::from))
                     .collect::<Vec<[Real; 7]>>()
             })
-            .reduce(
-                || vec![[0.0; 7]; n],
-                |mut s, p| {
-                    for (a, b) in s.iter_mut().zip(&p) {
-                        for i in 0..7 {
-                            a[i] += b[i];
-                        }
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![[0.0; 7]; n], |mut s, p| {
+                for (a, b) in s.iter_mut().zip(&p) {
+                    for i in 0..7 {
+                        a[i] += b[i];
                     }
-                    s
-                },
-            );
+                }
+                s
+            });
         for (k, (sum, column)) in sums.iter().zip(prepared).enumerate() {
             let gt = nalgebra::Vector6::from_column_slice(&sum[..6]);
             let jt = (gt - column.h * sum[6]) / column.norm;
@@ -799,6 +802,8 @@ fn inner_loop(
                 }
                 sum
             })
+            .collect::<Vec<Real>>()
+            .iter()
             .sum();
         mu *= rho;
         if residual_squared.sqrt() / data_norm < options.inner_tolerance {

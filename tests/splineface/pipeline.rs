@@ -454,3 +454,77 @@ fn the_evaluation_harness_runs() {
     assert!(mean_of("**default**") < mean_of("mean face"), "{page}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The same inputs give byte-identical outputs across runs and thread counts (`report.json`
+/// differs only in its timings).
+#[test]
+fn outputs_are_repeatable_across_runs_and_thread_counts() {
+    let dir = scratch("repeat");
+    let photos = dir.join("photos");
+    std::fs::create_dir_all(&photos).unwrap();
+    let scene = scene(&SceneOptions {
+        photos: 5,
+        ..SceneOptions::default()
+    })
+    .unwrap();
+    for (p, bytes) in scene.files().unwrap() {
+        std::fs::write(photos.join(p), bytes).unwrap();
+    }
+    let run = |name: &str, threads: &str| -> PathBuf {
+        let out = dir.join(name);
+        let result = Command::new(env!("CARGO_BIN_EXE_splineface"))
+            .args([
+                "reconstruct",
+                "--photos",
+                &s(&photos),
+                "--landmarks",
+                &s(&photos),
+                "--out",
+                &s(&out),
+            ])
+            .env("RAYON_NUM_THREADS", threads)
+            .output()
+            .unwrap();
+        assert!(
+            result.status.success(),
+            "{}",
+            String::from_utf8_lossy(&result.stderr)
+        );
+        out
+    };
+    let runs = [run("a", "1"), run("b", "2"), run("c", "2"), run("d", "3")];
+    let mut files: Vec<PathBuf> = OUTPUTS.iter().map(PathBuf::from).collect();
+    files.extend(
+        [
+            "face.png",
+            "face.mtl",
+            "aligned/sparse.png",
+            "aligned/low-rank.png",
+        ]
+        .map(PathBuf::from),
+    );
+    for file in &files {
+        let first = std::fs::read(runs[0].join(file)).unwrap();
+        for other in &runs[1..] {
+            let bytes = std::fs::read(other.join(file)).unwrap();
+            if file == Path::new("report.json") {
+                let strip = |b: &[u8]| {
+                    let mut v: serde_json::Value = serde_json::from_slice(b).unwrap();
+                    v["timings"] = serde_json::Value::Null;
+                    v["rasl"]["seconds"] = serde_json::Value::Null;
+                    v
+                };
+                assert_eq!(strip(&first), strip(&bytes), "report.json beyond its timings");
+            } else {
+                assert!(
+                    first == bytes,
+                    "{} differs between {} and {}",
+                    file.display(),
+                    runs[0].display(),
+                    other.display()
+                );
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
