@@ -11,7 +11,9 @@ use crate::Real;
 
 /// Reads the triangles of a glTF file's scene (see [`super::read_mesh`]).
 pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
-    let gltf = gltf::Gltf::open(path).map_err(gltf_problem)?;
+    let bytes = std::fs::read(path)?;
+    check_glb_header(&bytes)?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(gltf_problem)?;
     let base = path.parent().unwrap_or(Path::new("."));
     let buffers =
         gltf::import_buffers(&gltf.document, Some(base), gltf.blob.clone()).map_err(gltf_problem)?;
@@ -31,6 +33,39 @@ pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
         }
     }
     builder.finish()
+}
+
+/// Checks a binary glTF's header and chunk lengths against the file's size before the `gltf`
+/// crate sees it: it allocates what the header claims (a fuzzed 20-byte file claiming 3 GB ran
+/// out of memory), so lies about lengths are refused here. Text glTF passes through.
+fn check_glb_header(bytes: &[u8]) -> Result<(), MeshProblem> {
+    if !bytes.starts_with(b"glTF") {
+        return Ok(());
+    }
+    let word = |at: usize| -> Option<usize> {
+        bytes
+            .get(at..at + 4)
+            .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+    };
+    let truncated = |what: &str| MeshProblem::Truncated(format!("binary glTF: {what}"));
+    let total = word(8).ok_or_else(|| truncated("no header"))?;
+    if total != bytes.len() {
+        return Err(truncated(&format!(
+            "the header says {total} bytes, the file has {}",
+            bytes.len()
+        )));
+    }
+    let mut at = 12;
+    while at < bytes.len() {
+        let length = word(at).ok_or_else(|| truncated("a chunk header is cut"))?;
+        if length > bytes.len() - at - 8.min(bytes.len() - at) {
+            return Err(truncated(&format!(
+                "a chunk claims {length} bytes, more than the file holds"
+            )));
+        }
+        at += 8 + length;
+    }
+    Ok(())
 }
 
 fn gltf_problem(error: gltf::Error) -> MeshProblem {

@@ -461,3 +461,33 @@ fn front_heights_keep_the_front_most_surface() {
         }
     }
 }
+
+/// Found by fuzzing (`tools/fuzz`, target `glb`): a 95-byte GLB whose header claims gigabytes
+/// made the `gltf` crate allocate them. It is now refused from the header.
+#[test]
+fn a_glb_header_claiming_gigabytes_is_refused_without_allocating() {
+    let hex = "676c5446020000000000b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1b1803f676c0000";
+    let bytes: Vec<u8> = (0..hex.len())
+        .step_by(2)
+        .map(|i| u8::from_str_radix(&hex[i..i + 2], 16).unwrap())
+        .collect();
+    let path = std::env::temp_dir().join(format!("splineface-oom-{}.glb", std::process::id()));
+    std::fs::write(&path, &bytes).unwrap();
+    let error = splineface::mesh::read_mesh(&path).unwrap_err();
+    assert!(error.to_string().contains("binary glTF"), "{error}");
+    // A chunk longer than the file, with an honest total.
+    let mut lying = b"glTF".to_vec();
+    lying.extend(2u32.to_le_bytes());
+    lying.extend(28u32.to_le_bytes());
+    lying.extend(1_000_000u32.to_le_bytes());
+    lying.extend(b"JSON");
+    lying.extend(b"{}      ");
+    std::fs::write(&path, &lying).unwrap();
+    assert!(
+        splineface::mesh::read_mesh(&path)
+            .unwrap_err()
+            .to_string()
+            .contains("more than the file holds")
+    );
+    std::fs::remove_file(&path).unwrap();
+}
