@@ -13,8 +13,20 @@ use crate::Real;
 pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
     let bytes = std::fs::read(path)?;
     check_glb_header(&bytes)?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(gltf_problem)?;
     let base = path.parent().unwrap_or(Path::new("."));
+    // The `gltf` crate (1.4) can panic on inconsistent files: fuzzing found an index out of
+    // bounds in its own validation (gltf-json mesh.rs:151). A panic there is this file's
+    // problem, not the program's, so it becomes an error.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse_gltf(&bytes, base))).unwrap_or_else(|_| {
+        Err(syntax(
+            "glTF",
+            "the file's references are inconsistent (the gltf crate failed validating it)",
+        ))
+    })
+}
+
+fn parse_gltf(bytes: &[u8], base: &Path) -> Result<TriangleMesh, MeshProblem> {
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_problem)?;
     let buffers =
         gltf::import_buffers(&gltf.document, Some(base), gltf.blob.clone()).map_err(gltf_problem)?;
     let document = &gltf.document;

@@ -491,3 +491,16 @@ fn a_glb_header_claiming_gigabytes_is_refused_without_allocating() {
     );
     std::fs::remove_file(&path).unwrap();
 }
+
+/// Found by fuzzing (`tools/fuzz`, target `glb`): a 592-byte GLB whose primitive refers to a
+/// missing accessor made the `gltf` crate's validation panic (index out of bounds). It is now
+/// an error naming the file.
+#[test]
+fn a_glb_that_panics_the_gltf_crate_is_an_error() {
+    let path = std::env::temp_dir().join(format!("splineface-panic-{}.glb", std::process::id()));
+    std::fs::write(&path, include_bytes!("../data/fuzz-glb-validation-panic.glb")).unwrap();
+    let error = splineface::mesh::read_mesh(&path).unwrap_err();
+    assert!(error.to_string().contains("inconsistent"), "{error}");
+    assert!(error.to_string().contains("splineface-panic"), "{error}");
+    std::fs::remove_file(&path).unwrap();
+}
