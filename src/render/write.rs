@@ -16,9 +16,10 @@ pub struct DepthFileError(pub String);
 /// Encodes the map as OpenEXR, one layer `depth` of two float32 channels, rows from the top:
 /// `Z`, the distance from the view plane through the origin along the viewing direction
 /// (`−height`: positive behind the plane, negative in front of it, in the mesh's units), and
-/// `A`, 1 on the surface and 0 on the background (where `Z` is 0 and means nothing). The pixel
-/// size and the position of the top-left pixel centre are stored as the layer attributes
-/// `splineface_pixel_size` and `splineface_origin` (`x`, `y` of the view frame).
+/// `A`, 1 on the surface and 0 on the background (where `Z` is 0 and means nothing). The
+/// position of the top-left pixel centre (`x`, `y` of the view frame) and the pixel size are
+/// stored in the layer's text attribute `splineface_frame` as
+/// `origin_x X origin_y Y pixel_size S`. The bytes are the same on every run.
 ///
 /// # Errors
 /// The encoder's message (should not happen for a valid map).
@@ -37,19 +38,26 @@ pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
         });
     let top_left = map.raster.position(0, height - 1);
     let mut attributes = LayerAttributes::named("depth");
+    // One attribute: the exr crate keeps custom attributes in a hash map and writes them in its
+    // (per-process random) order, so two would make the bytes differ from run to run.
     attributes.other.insert(
-        Text::from("splineface_pixel_size"),
-        AttributeValue::F64(map.raster.spacing),
-    );
-    attributes.other.insert(
-        Text::from("splineface_origin"),
-        AttributeValue::FloatVec2(Vec2(top_left.x as f32, top_left.y as f32)),
+        Text::from("splineface_frame"),
+        AttributeValue::Text(Text::from(
+            format!(
+                "origin_x {:?} origin_y {:?} pixel_size {:?}",
+                top_left.x, top_left.y, map.raster.spacing
+            )
+            .as_str(),
+        )),
     );
     let layer = Layer::new((width, height), attributes, Encoding::SMALL_LOSSLESS, pixels);
     let image = Image::from_layer(layer);
     let mut bytes = Vec::new();
+    // Compressed on one thread, so that nothing in the file can depend on scheduling (depth maps
+    // are small; it costs little).
     image
         .write()
+        .non_parallel()
         .to_buffered(Cursor::new(&mut bytes))
         .map_err(|e| DepthFileError(e.to_string()))?;
     Ok(bytes)
