@@ -27,6 +27,18 @@
 //!   from their points alone); [`depth`]: the 3D structure by the paper's pose/depth
 //!   alternation with the multi-substructure SSIM constraint ([`depth::estimate_depth`]).
 //!
+//! * [`align::rasl_frontal`]: the frontal structure from the photos themselves (RASL low-rank
+//!   batch alignment of the photos and their mirror images).
+//!
+//! * [`face`]: the reference grid deformed to an estimated structure (the paper's affine
+//!   `Tr_f`, or the measured-better local mode) and its clipped mesh; [`export`]: STEP, GLB and
+//!   textured OBJ; [`render`]: depth maps (EXR, 16-bit PNG), previews, heatmaps and synthetic
+//!   photos; [`compare`]: a reconstruction against a ground truth, with the paper's measures.
+//!
+//! * [`detect`]: face detection (SeetaFace, model embedded); [`landmarker`]: dlib's 68-point
+//!   `shape_predictor` in pure Rust; [`pipeline`]: the stages chained and every output file;
+//!   [`demo`]: the embedded demo subject and its photos.
+//!
 //! The face front ends feed the kernel a transform; they are built on top of it.
 //!
 //! ## Conventions
