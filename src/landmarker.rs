@@ -237,7 +237,8 @@ impl ShapePredictor {
             file: path.to_path_buf(),
             problem,
         };
-        let bytes = std::fs::read(path).map_err(|e| error(ModelProblem::Io(e.to_string())))?;
+        let bytes = crate::io::read_input(path, crate::io::MAX_DATA_INPUT_BYTES)
+            .map_err(|e| error(ModelProblem::Io(e.to_string())))?;
         Self::parse(&bytes).map_err(error)
     }
 
@@ -284,7 +285,8 @@ impl ShapePredictor {
                 if n_leaves != n_splits + 1 {
                     return Err(r.malformed(format!("{n_leaves} leaves for {n_splits} splits")));
                 }
-                let mut leaves = Vec::with_capacity(n_leaves * dims);
+                // Each value takes at least two bytes: reserve no more than the file can hold.
+                let mut leaves = Vec::with_capacity(n_leaves.saturating_mul(dims).min(bytes.len() / 2));
                 for _ in 0..n_leaves {
                     let leaf = r.column()?;
                     if leaf.len() != dims {

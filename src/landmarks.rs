@@ -125,7 +125,8 @@ fn syntax(line: usize, message: impl Into<String>) -> LandmarkProblem {
 /// # Errors
 /// A [`LandmarkError`] naming the file and the first problem.
 pub fn read_pts(path: &Path) -> Result<Vec<Point2<Real>>, LandmarkError> {
-    let text = std::fs::read_to_string(path).map_err(|e| error(path, e.into()))?;
+    let text = crate::io::read_input_text(path, crate::io::MAX_SMALL_INPUT_BYTES)
+        .map_err(|e| error(path, e.into()))?;
     parse_pts(&text).map_err(|p| error(path, p))
 }
 
@@ -230,7 +231,8 @@ pub fn read_vertex_indices(
     expected: usize,
     vertices: usize,
 ) -> Result<Vec<usize>, LandmarkError> {
-    let text = std::fs::read_to_string(path).map_err(|e| error(path, e.into()))?;
+    let text = crate::io::read_input_text(path, crate::io::MAX_SMALL_INPUT_BYTES)
+        .map_err(|e| error(path, e.into()))?;
     parse_vertex_indices(&text, expected, vertices).map_err(|p| error(path, p))
 }
 
@@ -379,7 +381,8 @@ fn structure<const D: usize>(
 /// # Errors
 /// A [`LandmarkError`] naming the file and the problem.
 pub fn read_landmarks_json(path: &Path) -> Result<Landmarks, LandmarkError> {
-    let text = std::fs::read_to_string(path).map_err(|e| error(path, e.into()))?;
+    let text = crate::io::read_input_text(path, crate::io::MAX_SMALL_INPUT_BYTES)
+        .map_err(|e| error(path, e.into()))?;
     parse_landmarks_json(&text).map_err(|p| error(path, p))
 }
 

@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use nalgebra::{Affine3, Matrix4, Point3, Vector3};
-use splineface::align::{GreyImage, PhotoPoints};
+use splineface::align::PhotoPoints;
 use splineface::bspline::BSplineSurface;
 use splineface::compare::CompareOptions;
 use splineface::face::{Deformation, MeshOptions, Units};
@@ -179,6 +179,10 @@ struct OutputArgs {
     /// The depth map's larger side, pixels.
     #[arg(long, default_value_t = 512)]
     depth_size: usize,
+    /// Stop with an error when fewer photos than this are usable (one photo measured worse
+    /// than the unchanged mean face; see tools/results/evaluation.md).
+    #[arg(long, default_value_t = splineface::pipeline::MIN_PHOTOS)]
+    min_photos: usize,
 }
 
 impl OutputArgs {
@@ -212,8 +216,12 @@ impl OutputArgs {
                 self.depth_size
             );
         }
+        if self.min_photos == 0 {
+            bail!("--min-photos must be at least 1");
+        }
         Ok(PipelineOptions {
             units,
+            min_photos: self.min_photos,
             deformation,
             mesh: MeshOptions {
                 spacing: self.spacing,
@@ -514,7 +522,8 @@ fn compare(args: &CompareArgs) -> Result<()> {
 }
 
 fn inspect(path: &Path) -> Result<()> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
+        .with_context(|| format!("cannot read {}", path.display()))?;
     let surface = BSplineSurface::from_json(&text)
         .with_context(|| format!("{} is not a valid B-spline surface", path.display()))?;
     let (u0, u1) = surface.domain_u();
@@ -560,8 +569,8 @@ fn fit_reference(
     let mut scans = Vec::with_capacity(meshes.len());
     for (mesh_path, landmark_path) in meshes.iter().zip(landmarks) {
         let mesh = read_mesh(mesh_path)?;
-        let bytes =
-            std::fs::read(mesh_path).with_context(|| format!("cannot read {}", mesh_path.display()))?;
+        let bytes = splineface::io::read_input(mesh_path, splineface::io::MAX_LARGE_INPUT_BYTES)
+            .with_context(|| format!("cannot read {}", mesh_path.display()))?;
         let structure = read_structure(landmark_path, &mesh)?;
         scans.push(ReferenceScan {
             source: ReferenceSource {
@@ -728,8 +737,8 @@ fn reconstruct_command(
     }
     let reference = match reference_path {
         Some(path) => {
-            let text =
-                std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+            let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
+                .with_context(|| format!("cannot read {}", path.display()))?;
             ReferenceFace::from_json(&text)
                 .with_context(|| format!("{} is not a valid reference face", path.display()))?
         }
@@ -759,10 +768,10 @@ fn reconstruct_command(
         }
         progress(&format!("points only: {} landmark files", files.len()));
         for file in files {
-            inputs.push(Input {
-                points: read_photo_points(&file)?,
-                image: None,
-            });
+            match read_photo_points(&file) {
+                Ok(points) => inputs.push(Input { points, image: None }),
+                Err(e) => skipped.push(format!("{e:#}")),
+            }
         }
     } else {
         if landmark_dir.is_none() && predictor.is_none() {
@@ -779,19 +788,21 @@ fn reconstruct_command(
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
             let file = landmark_dir.and_then(|dir| landmark_file(dir, &stem));
-            let decoded = match GreyImage::read(path) {
-                Err(e) => Err(e.to_string()),
-                Ok(_) => image::open(path).map_err(|e| format!("{}: {e}", path.display())),
-            };
-            let decoded = match decoded {
+            let decoded = match splineface::align::decode_photo(path) {
                 Ok(d) => d,
                 Err(e) => {
-                    skipped.push(e);
+                    skipped.push(e.to_string());
                     continue;
                 }
             };
             let points = match (file, &predictor) {
-                (Some(file), _) => read_photo_points(&file)?,
+                (Some(file), _) => match read_photo_points(&file) {
+                    Ok(points) => points,
+                    Err(e) => {
+                        skipped.push(format!("{}: its landmarks: {e:#}", path.display()));
+                        continue;
+                    }
+                },
                 (None, Some(model)) => match find_landmarks(model, &decoded, &stem) {
                     Ok((points, note)) => {
                         if let Some(note) = note {
@@ -822,12 +833,21 @@ fn reconstruct_command(
                 Err(e) => skipped.push(format!("{}: {e}", path.display())),
             }
         }
-        for s in &skipped {
-            progress(&format!("skipped {s}"));
-        }
-        if inputs.is_empty() {
-            bail!("no usable photo ({} skipped)", skipped.len());
-        }
+    }
+    for s in &skipped {
+        progress(&format!("skipped {s}"));
+    }
+    if inputs.len() < options.min_photos {
+        bail!(
+            "{} usable photo{}, at least {} needed (--min-photos){}",
+            inputs.len(),
+            if inputs.len() == 1 { "" } else { "s" },
+            options.min_photos,
+            skipped
+                .iter()
+                .map(|s| format!("\n  skipped {s}"))
+                .collect::<String>()
+        );
     }
     let start = std::time::Instant::now();
     let result = reconstruct(&inputs, &reference, &options, progress)?;
@@ -1049,21 +1069,17 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     Ok(())
 }
 
-/// Detects the faces in a photo and landmarks the largest: its 40 points, and a note when there
-/// were several faces.
+/// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::subject_face`]):
+/// its 40 points, and a note when smaller faces were ignored.
 fn find_landmarks(
     model: &splineface::landmarker::ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
 ) -> std::result::Result<(PhotoPoints, Option<String>), String> {
-    use splineface::detect::{detect_faces, landmark_box};
-    let faces = detect_faces(&image.to_luma8());
-    let Some(largest) = faces.first() else {
-        return Err("no face found".to_owned());
-    };
-    let note = (faces.len() > 1).then(|| format!("{} faces found; the largest is used", faces.len()));
+    use splineface::detect::{detect_faces, landmark_box, subject_face};
+    let (largest, note) = subject_face(&detect_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
     let intensity = splineface::landmarker::Intensity::from_rgb(&image.to_rgb8());
-    let ibug = model.predict(&intensity, landmark_box(largest));
+    let ibug = model.predict(&intensity, landmark_box(&largest));
     if ibug.len() != 68 {
         return Err(format!(
             "the landmark model gives {} points, not the 68 of iBUG",

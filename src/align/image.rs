@@ -143,31 +143,11 @@ impl GreyImage {
     /// [`GreyImage::new`]'s checks. Headers announcing more than 100 megapixels are refused
     /// before decoding.
     pub fn read(path: &Path) -> Result<Self, PhotoError> {
-        let error = |problem| PhotoError {
+        let decoded = decode_photo(path)?;
+        GreyImage::from_dynamic(&decoded).map_err(|problem| PhotoError {
             file: path.to_path_buf(),
             problem,
-        };
-        let reader = image::ImageReader::open(path)
-            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?
-            .with_guessed_format()
-            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
-        let mut reader = reader;
-        let mut limits = image::Limits::default();
-        limits.max_alloc = Some(2 * 1024 * 1024 * 1024);
-        reader.limits(limits);
-        let (width, height) = reader
-            .into_dimensions()
-            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
-        let (width, height) = (width as usize, height as usize);
-        if width.saturating_mul(height) > MAX_PIXELS {
-            return Err(error(PhotoProblem::Huge { width, height }));
-        }
-        let decoded = image::ImageReader::open(path)
-            .and_then(|r| r.with_guessed_format())
-            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?
-            .decode()
-            .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
-        GreyImage::from_dynamic(&decoded).map_err(error)
+        })
     }
 
     /// Width in pixels.
@@ -228,4 +208,37 @@ impl GreyImage {
         let bottom = values[y1 * w + x0] * (1.0 - fx) + values[y1 * w + x1] * fx;
         top * (1.0 - fy) + bottom * fy
     }
+}
+
+/// Reads and decodes a photo in any format the `image` crate has enabled, within limits: the
+/// file must be a regular file of at most [`crate::io::MAX_LARGE_INPUT_BYTES`], its header
+/// must announce at most 100 megapixels (checked before decoding), and decoding may allocate
+/// at most 2 GiB.
+///
+/// # Errors
+/// A [`PhotoError`] naming the file: unreadable, of an unknown format, too large, or failing
+/// to decode (a truncated download, say).
+pub fn decode_photo(path: &Path) -> Result<image::DynamicImage, PhotoError> {
+    let error = |problem| PhotoError {
+        file: path.to_path_buf(),
+        problem,
+    };
+    let unreadable =
+        |e: &dyn std::fmt::Display| error(PhotoProblem::Unreadable(e.to_string().trim_end().to_owned()));
+    let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| unreadable(&e))?;
+    let reader = || -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, PhotoError> {
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes.as_slice()))
+            .with_guessed_format()
+            .map_err(|e| unreadable(&e))?;
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(2 * 1024 * 1024 * 1024);
+        reader.limits(limits);
+        Ok(reader)
+    };
+    let (width, height) = reader()?.into_dimensions().map_err(|e| unreadable(&e))?;
+    let (width, height) = (width as usize, height as usize);
+    if width.saturating_mul(height) > MAX_PIXELS {
+        return Err(error(PhotoProblem::Huge { width, height }));
+    }
+    reader()?.decode().map_err(|e| unreadable(&e))
 }

@@ -11,13 +11,29 @@ use crate::Real;
 
 /// Reads the triangles of a glTF file's scene (see [`super::read_mesh`]).
 pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
-    let bytes = std::fs::read(path)?;
-    check_glb_header(&bytes)?;
-    let base = path.parent().unwrap_or(Path::new("."));
+    let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES)?;
+    parse_gltf(&bytes, Some(path.parent().unwrap_or(Path::new("."))))
+}
+
+/// Parses a glTF 2.0 file's bytes, text `.gltf` or binary `.glb` (see [`super::read_mesh`] for
+/// what is read).
+///
+/// Buffers come from the GLB's binary chunk, from `data:` URIs, or from files named by
+/// relative (or `file:`) URIs, resolved against `base`. Only regular files are read, and only
+/// the buffer's declared length of them, so a URI naming a device or a pipe is an error, not a
+/// hang. With `base` = `None`, a buffer in another file is an error. No other URI scheme is
+/// fetched.
+///
+/// # Errors
+/// The first problem found: malformed JSON or GLB framing, lengths the file does not hold,
+/// missing or unreadable buffers, unsupported primitives, indices out of range, non-finite
+/// coordinates.
+pub fn parse_gltf(bytes: &[u8], base: Option<&Path>) -> Result<TriangleMesh, MeshProblem> {
+    check_glb_header(bytes)?;
     // The `gltf` crate (1.4) can panic on inconsistent files: fuzzing found an index out of
     // bounds in its own validation (gltf-json mesh.rs:151). A panic there is this file's
     // problem, not the program's, so it becomes an error.
-    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| parse_gltf(&bytes, base))).unwrap_or_else(|_| {
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build_mesh(bytes, base))).unwrap_or_else(|_| {
         Err(syntax(
             "glTF",
             "the file's references are inconsistent (the gltf crate failed validating it)",
@@ -25,11 +41,13 @@ pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
     })
 }
 
-fn parse_gltf(bytes: &[u8], base: &Path) -> Result<TriangleMesh, MeshProblem> {
+fn build_mesh(bytes: &[u8], base: Option<&Path>) -> Result<TriangleMesh, MeshProblem> {
     let gltf = gltf::Gltf::from_slice(bytes).map_err(gltf_problem)?;
-    let buffers =
-        gltf::import_buffers(&gltf.document, Some(base), gltf.blob.clone()).map_err(gltf_problem)?;
     let document = &gltf.document;
+    let buffers = document
+        .buffers()
+        .map(|buffer| load_buffer(&buffer, gltf.blob.as_deref(), base))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut builder = Builder::default();
     let scene = document.default_scene().or_else(|| document.scenes().next());
     match scene {
@@ -45,6 +63,116 @@ fn parse_gltf(bytes: &[u8], base: &Path) -> Result<TriangleMesh, MeshProblem> {
         }
     }
     builder.finish()
+}
+
+/// One buffer's bytes, exactly its declared length (longer sources are cut, shorter ones are
+/// errors). This replaces `gltf::import_buffers`, which reads whatever file a URI names to its
+/// end (a `file:///dev/zero` buffer never returns) and allocates before checking lengths.
+fn load_buffer(
+    buffer: &gltf::Buffer,
+    blob: Option<&[u8]>,
+    base: Option<&Path>,
+) -> Result<Vec<u8>, MeshProblem> {
+    let location = || format!("buffer {}", buffer.index());
+    let length = buffer.length();
+    let short = |have: usize| {
+        MeshProblem::Truncated(format!(
+            "{}: {length} bytes declared, its source holds {have}",
+            location()
+        ))
+    };
+    let data = match buffer.source() {
+        gltf::buffer::Source::Bin => {
+            let blob =
+                blob.ok_or_else(|| syntax(location(), "refers to a binary chunk the file does not have"))?;
+            blob.get(..length).ok_or_else(|| short(blob.len()))?.to_vec()
+        }
+        gltf::buffer::Source::Uri(uri) => {
+            if let Some(rest) = uri.strip_prefix("data:") {
+                let (_, payload) = rest.split_once(";base64,").ok_or_else(|| {
+                    MeshProblem::Unsupported(format!("{}: a data URI that is not base64", location()))
+                })?;
+                let mut data = base64::decode(payload)
+                    .map_err(|e| syntax(location(), format!("the data URI is not valid base64 ({e})")))?;
+                if data.len() < length {
+                    return Err(short(data.len()));
+                }
+                data.truncate(length);
+                data
+            } else {
+                let name = external_path(uri).ok_or_else(|| {
+                    MeshProblem::Unsupported(format!(
+                        "{}: the URI {uri:?} (only files and data: URIs are read)",
+                        location()
+                    ))
+                })?;
+                let base = base.ok_or_else(|| {
+                    syntax(
+                        location(),
+                        format!("lives in another file ({name}), which is not available here"),
+                    )
+                })?;
+                let path = base.join(&name);
+                let io = |e: std::io::Error| {
+                    MeshProblem::Io(std::io::Error::new(
+                        e.kind(),
+                        format!("{}: {}: {e}", location(), path.display()),
+                    ))
+                };
+                let file = std::fs::File::open(&path).map_err(io)?;
+                let metadata = file.metadata().map_err(io)?;
+                if !metadata.is_file() {
+                    return Err(syntax(
+                        location(),
+                        format!("{} is not a regular file", path.display()),
+                    ));
+                }
+                let have = usize::try_from(metadata.len()).unwrap_or(usize::MAX);
+                if have < length {
+                    return Err(short(have));
+                }
+                let mut data = Vec::with_capacity(length);
+                std::io::Read::read_to_end(&mut std::io::Read::take(file, length as u64), &mut data)
+                    .map_err(io)?;
+                if data.len() < length {
+                    return Err(short(data.len()));
+                }
+                data
+            }
+        }
+    };
+    Ok(data)
+}
+
+/// The file path a buffer URI names, percent-decoded: a relative reference or a `file:` URI;
+/// `None` for any other scheme or a malformed escape.
+fn external_path(uri: &str) -> Option<String> {
+    let path = if let Some(rest) = uri.strip_prefix("file://") {
+        rest
+    } else if let Some(rest) = uri.strip_prefix("file:") {
+        rest
+    } else {
+        // A colon before the first slash starts a scheme (RFC 3986 §4.2).
+        let first_slash = uri.find('/').unwrap_or(uri.len());
+        if uri[..first_slash].contains(':') {
+            return None;
+        }
+        uri
+    };
+    let bytes = path.as_bytes();
+    let mut decoded = Vec::with_capacity(bytes.len());
+    let mut k = 0;
+    while k < bytes.len() {
+        if bytes[k] == b'%' {
+            let hex = std::str::from_utf8(bytes.get(k + 1..k + 3)?).ok()?;
+            decoded.push(u8::from_str_radix(hex, 16).ok()?);
+            k += 3;
+        } else {
+            decoded.push(bytes[k]);
+            k += 1;
+        }
+    }
+    String::from_utf8(decoded).ok().filter(|p| !p.is_empty())
 }
 
 /// Checks a binary glTF's header and chunk lengths against the file's size before the `gltf`
@@ -145,7 +273,7 @@ impl Builder {
         &mut self,
         node: &gltf::Node,
         parent: &Matrix4<Real>,
-        buffers: &[gltf::buffer::Data],
+        buffers: &[Vec<u8>],
         depth: usize,
         nodes: usize,
     ) -> Result<(), MeshProblem> {
@@ -171,7 +299,7 @@ impl Builder {
         &mut self,
         mesh: &gltf::Mesh,
         world: &Matrix4<Real>,
-        buffers: &[gltf::buffer::Data],
+        buffers: &[Vec<u8>],
     ) -> Result<(), MeshProblem> {
         for primitive in mesh.primitives() {
             let location = || format!("mesh {} primitive {}", mesh.index(), primitive.index());

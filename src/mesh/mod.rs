@@ -27,6 +27,7 @@ mod ply;
 mod raster;
 
 pub use closest::{Closest, ClosestPoints, closest_on_triangle};
+pub use gltf::parse_gltf;
 pub(crate) use obj::format_obj_with_material;
 pub use obj::{format_obj, parse_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};
@@ -309,7 +310,8 @@ pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MeshError> {
     match MeshFormat::from_path(path) {
         None => Err(error(MeshProblem::UnknownFormat)),
         Some(MeshFormat::Obj) => {
-            let bytes = std::fs::read(path).map_err(|e| error(e.into()))?;
+            let bytes =
+                crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| error(e.into()))?;
             let text = std::str::from_utf8(&bytes).map_err(|e| {
                 error(syntax(
                     format!("byte {}", e.valid_up_to()),
@@ -319,7 +321,8 @@ pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MeshError> {
             parse_obj(text).map_err(error)
         }
         Some(MeshFormat::Ply) => {
-            let bytes = std::fs::read(path).map_err(|e| error(e.into()))?;
+            let bytes =
+                crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| error(e.into()))?;
             parse_ply(&bytes).map_err(error)
         }
         Some(MeshFormat::Gltf) => gltf::read_gltf(path).map_err(error),

@@ -307,7 +307,9 @@ pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
             (0, None)
         };
         if is_vertex {
-            positions.reserve(element.count.min(1 << 24));
+            // Every vertex takes at least three bytes (x, y and z as chars, or "0 0 0"), so a
+            // header claiming more than the file holds reserves no more than the file.
+            positions.reserve(element.count.min(bytes.len() / 3));
         }
         // An element without properties occupies no bytes: nothing to read, however many.
         let count = if element.properties.is_empty() {

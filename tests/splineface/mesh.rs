@@ -268,9 +268,9 @@ property double z\nelement face 1\nproperty list uchar int vertex_indices\nend_h
     }
 }
 
-/// A GLB with two nodes sharing one mesh (u16 indices, TEXCOORD_0), one translated and one a
-/// child of a scaled parent.
-fn glb() -> Vec<u8> {
+/// A glTF document with two nodes sharing one mesh (u16 indices, TEXCOORD_0), one translated
+/// and one a child of a scaled parent, and its one buffer's bytes (the buffer has no URI).
+fn gltf_parts() -> (serde_json::Value, Vec<u8>) {
     let positions: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     let uvs: [[f32; 2]; 3] = [[0.0, 0.0], [1.0, 0.0], [0.0, 0.25]];
     let indices: [u16; 4] = [0, 1, 2, 0]; // three used, one of padding
@@ -304,6 +304,12 @@ fn glb() -> Vec<u8> {
             {"bufferView": 2, "componentType": 5123, "count": 3, "type": "SCALAR"}
         ]
     });
+    (json, bin)
+}
+
+/// [`gltf_parts`] as a GLB.
+fn glb() -> Vec<u8> {
+    let (json, bin) = gltf_parts();
     let mut json = serde_json::to_vec(&json).unwrap();
     while !json.len().is_multiple_of(4) {
         json.push(b' ');
@@ -334,6 +340,71 @@ fn glb_places_meshes_by_their_nodes() {
     let texture = mesh.texture().unwrap();
     // v is flipped to point up.
     assert_eq!(texture.uvs[2], Point2::new(0.0, 0.75));
+}
+
+#[test]
+fn gltf_buffers_come_from_files_and_data_uris_only() {
+    let dir = scratch("gltf-buffers");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (mut json, bin) = gltf_parts();
+    let expected = read_mesh(&{
+        let path = dir.join("reference.glb");
+        std::fs::write(&path, glb()).unwrap();
+        path
+    })
+    .unwrap();
+    let read_with_uri = |json: &mut serde_json::Value, uri: &str| {
+        json["buffers"][0]["uri"] = uri.into();
+        let path = dir.join("mesh.gltf");
+        std::fs::write(&path, serde_json::to_vec(json).unwrap()).unwrap();
+        read_mesh(&path)
+    };
+    // A file next to the glTF, its name percent-escaped; a longer file is cut to byteLength.
+    let mut longer = bin.clone();
+    longer.extend_from_slice(&[0xff; 16]);
+    std::fs::write(dir.join("the mesh.bin"), &longer).unwrap();
+    let mesh = read_with_uri(&mut json, "the%20mesh.bin").unwrap();
+    assert_eq!(mesh.positions(), expected.positions());
+    assert_eq!(mesh.triangles(), expected.triangles());
+    // The same bytes as a data URI.
+    let data = format!("data:application/octet-stream;base64,{}", base64::encode(&bin));
+    assert_eq!(
+        read_with_uri(&mut json, &data).unwrap().positions(),
+        expected.positions()
+    );
+    // Without a folder to look in, an external buffer is an error, not a read of the cwd.
+    json["buffers"][0]["uri"] = "the%20mesh.bin".into();
+    let message = splineface::mesh::parse_gltf(&serde_json::to_vec(&json).unwrap(), None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("buffer 0: lives in another file (the mesh.bin)"),
+        "{message}"
+    );
+    // Refused: a device (reading /dev/zero to its end would never return), a folder, a short
+    // file, a missing file, another scheme, a data URI shorter than declared.
+    std::fs::write(dir.join("short.bin"), &bin[..50]).unwrap();
+    std::fs::create_dir_all(dir.join("folder.bin")).unwrap();
+    for (uri, expected) in [
+        ("file:///dev/zero", "/dev/zero is not a regular file"),
+        ("folder.bin", "folder.bin is not a regular file"),
+        ("short.bin", "68 bytes declared, its source holds 50"),
+        ("missing.bin", "missing.bin"),
+        (
+            "https://example.com/mesh.bin",
+            "only files and data: URIs are read",
+        ),
+        (
+            "data:application/octet-stream;base64,AAAA",
+            "68 bytes declared, its source holds 3",
+        ),
+        ("data:text/plain,hello", "a data URI that is not base64"),
+        ("bad%zzname.bin", "only files and data: URIs"),
+    ] {
+        let message = read_with_uri(&mut json, uri).unwrap_err().to_string();
+        assert!(message.contains("mesh.gltf"), "{uri}: {message}");
+        assert!(message.contains(expected), "{uri}: {message}");
+    }
 }
 
 #[test]

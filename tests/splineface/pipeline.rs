@@ -353,8 +353,10 @@ fn reconstruct_refuses_bad_input() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Photos without landmark files are detected and landmarked with dlib's model: a photo with
-/// no face is skipped and reported, one with many faces uses the largest and says so.
+/// Photos without landmark files are detected and landmarked with dlib's model. In a batch
+/// built from the fixture, a photo with no face, one with two faces of one size, a group photo
+/// and a corrupt file are skipped and reported; a photo with a small second face uses the
+/// largest and says so; the face comes from the three usable photos.
 #[test]
 #[ignore = "needs ../shared (dlib's model and photos)"]
 fn reconstruct_detects_and_landmarks_faces() {
@@ -362,14 +364,30 @@ fn reconstruct_detects_and_landmarks_faces() {
     let dir = scratch("detect");
     let photos = dir.join("photos");
     std::fs::create_dir_all(&photos).unwrap();
-    for name in [
-        "Tom_Cruise_avp_2014_4.jpg",
-        "2008_002470.jpg",
-        "bald_guys.jpg",
-        "dogs.jpg",
-    ] {
-        std::fs::copy(shared.join("data/dlib-faces").join(name), photos.join(name)).unwrap();
+    let faces = shared.join("data/dlib-faces");
+    for name in ["bald_guys.jpg", "dogs.jpg"] {
+        std::fs::copy(faces.join(name), photos.join(name)).unwrap();
     }
+    let tom_path = faces.join("Tom_Cruise_avp_2014_4.jpg");
+    let tom = image::open(&tom_path).unwrap().to_rgb8();
+    let (w, h) = tom.dimensions();
+    tom.save(photos.join("tom.png")).unwrap();
+    image::imageops::flip_horizontal(&tom)
+        .save(photos.join("tom-mirrored.png"))
+        .unwrap();
+    // A copy at a third of the size in a corner: a clearly smaller second face.
+    let mut with_small = tom.clone();
+    let small = image::imageops::resize(&tom, w / 3, h / 3, image::imageops::FilterType::Triangle);
+    image::imageops::replace(&mut with_small, &small, 0, 0);
+    with_small.save(photos.join("tom-with-a-small-face.png")).unwrap();
+    // Two copies side by side: two faces of one size.
+    let mut twins = image::RgbImage::new(2 * w, h);
+    image::imageops::replace(&mut twins, &tom, 0, 0);
+    image::imageops::replace(&mut twins, &tom, i64::from(w), 0);
+    twins.save(photos.join("two-toms.png")).unwrap();
+    // A download cut short.
+    let bytes = std::fs::read(&tom_path).unwrap();
+    std::fs::write(photos.join("truncated.jpg"), &bytes[..200]).unwrap();
     let out = dir.join("out");
     let model = shared.join("models/shape_predictor_68_face_landmarks.dat");
     let run = splineface(&[
@@ -383,13 +401,70 @@ fn reconstruct_detects_and_landmarks_faces() {
     ]);
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(run.status.success(), "{stderr}");
-    assert!(stderr.contains("dogs.jpg: no face found"), "{stderr}");
-    assert!(stderr.contains("the largest is used"), "{stderr}");
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(report["photos_used"].as_array().unwrap().len(), 3, "{report}");
-    assert!(report["photos_skipped"][0].as_str().unwrap().contains("dogs.jpg"));
+    let used: Vec<&str> = report["photos_used"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap())
+        .collect();
+    // In name order ("-" sorts before ".").
+    assert_eq!(used, ["tom-mirrored", "tom-with-a-small-face", "tom"], "{report}");
+    let skipped: Vec<&str> = report["photos_skipped"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap())
+        .collect();
+    assert_eq!(skipped.len(), 4, "{report}");
+    for (photo, reason) in [
+        (
+            "bald_guys.jpg",
+            "faces found and the two largest are of about one size",
+        ),
+        ("dogs.jpg", "no face found"),
+        ("truncated.jpg", "truncated.jpg"),
+        (
+            "two-toms.png",
+            "2 faces found and the two largest are of about one size",
+        ),
+    ] {
+        assert!(
+            skipped.iter().any(|s| s.contains(photo) && s.contains(reason)),
+            "{photo}: {skipped:?}"
+        );
+        assert!(
+            stderr.contains(&format!("skipped {}", photos.join(photo).display())),
+            "{stderr}"
+        );
+    }
+    let warnings = report["warnings"].to_string();
+    assert!(
+        warnings.contains("tom-with-a-small-face.png: 2 faces found; the largest is used"),
+        "{warnings}"
+    );
     assert!(out.join("face.glb").is_file());
+    // With the bar above the usable photos, the run stops and lists every skipped photo.
+    let strict = splineface(&[
+        "reconstruct",
+        "--photos",
+        &s(&photos),
+        "--landmark-model",
+        &s(&model),
+        "--min-photos",
+        "4",
+        "--out",
+        &s(&dir.join("strict")),
+    ]);
+    let message = String::from_utf8_lossy(&strict.stderr);
+    assert_eq!(strict.status.code(), Some(1), "{message}");
+    assert!(
+        message.contains("3 usable photos, at least 4 needed"),
+        "{message}"
+    );
+    assert!(message.contains("dogs.jpg: no face found"), "{message}");
+    assert!(!dir.join("strict").exists());
     // A model file that is not one.
     let bad = splineface(&[
         "reconstruct",
