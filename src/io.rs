@@ -23,16 +23,28 @@ pub const MAX_LARGE_INPUT_BYTES: u64 = 4 << 30;
 ///
 /// # Errors
 /// `NotFound` and other OS errors as they come; `InvalidInput` for a directory, a special file
-/// or an oversized file.
+/// or an oversized file; `InvalidData` for an empty file (no input this crate reads can be
+/// empty).
 pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
     let refuse = |message: String| Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, message));
-    let file = std::fs::File::open(path)?;
-    let metadata = file.metadata()?;
+    // Looked at before opening: opening a named pipe blocks until someone writes to it.
+    let metadata = std::fs::metadata(path)?;
     if metadata.is_dir() {
         return refuse("it is a directory, not a file".to_owned());
     }
     if !metadata.is_file() {
         return refuse("it is not a regular file (a device, pipe or socket)".to_owned());
+    }
+    let file = std::fs::File::open(path)?;
+    let metadata = file.metadata()?;
+    if !metadata.is_file() {
+        return refuse("it is not a regular file (it changed while being opened)".to_owned());
+    }
+    if metadata.len() == 0 {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "the file is empty",
+        ));
     }
     if metadata.len() > limit {
         return refuse(format!(
@@ -49,6 +61,30 @@ pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// The bytes as UTF-8 text (a leading byte-order mark dropped), or what they are instead.
+///
+/// # Errors
+/// A message naming UTF-16 (which some Windows tools write) or the first byte that is not
+/// UTF-8.
+pub fn utf8_text(bytes: &[u8]) -> Result<&str, String> {
+    let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
+    if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
+        return Err("the text is UTF-16; save it as UTF-8".to_owned());
+    }
+    std::str::from_utf8(bytes).map_err(|e| format!("the file is not UTF-8 text (byte {})", e.valid_up_to()))
+}
+
+/// A `serde_json` error's message without the ` at line L column C` it appends, for callers
+/// that report the position themselves.
+pub fn json_message(error: &serde_json::Error) -> String {
+    let message = error.to_string();
+    let suffix = format!(" at line {} column {}", error.line(), error.column());
+    match message.strip_suffix(&suffix) {
+        Some(bare) => format!("{bare} (column {})", error.column()),
+        None => message,
+    }
+}
+
 /// [`read_input`] for text: the bytes must be UTF-8 (a leading byte-order mark is dropped).
 ///
 /// # Errors
@@ -56,64 +92,133 @@ pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
 /// from some Windows tools are recognised and named as such).
 pub fn read_input_text(path: &Path, limit: u64) -> std::io::Result<String> {
     let bytes = read_input(path, limit)?;
-    let bytes = bytes
-        .strip_prefix(b"\xef\xbb\xbf")
-        .map_or(bytes.as_slice(), |b| b);
-    let invalid = |message: String| std::io::Error::new(std::io::ErrorKind::InvalidData, message);
-    if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
-        return Err(invalid("the text is UTF-16; save it as UTF-8".to_owned()));
-    }
-    std::str::from_utf8(bytes)
+    utf8_text(&bytes)
         .map(str::to_owned)
-        .map_err(|e| invalid(format!("the file is not UTF-8 text (byte {})", e.valid_up_to())))
+        .map_err(|message| std::io::Error::new(std::io::ErrorKind::InvalidData, message))
 }
 
-/// Writes `bytes` to `path` all or nothing: the bytes go to a temporary file in the same
-/// directory, which is flushed to disk and then renamed over `path`. If anything fails, the
-/// temporary file is removed and `path` is untouched.
-///
-/// # Errors
-/// The I/O error, with the path it concerns.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+/// The temporary a file is staged in before it is renamed over `path`: `.NAME.PID.tmp` in the
+/// same directory (a rename across file systems would not be atomic).
+fn temporary_for(path: &Path) -> std::io::Result<std::path::PathBuf> {
     let name = path.file_name().ok_or_else(|| {
         std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             format!("{} is not a file path", path.display()),
         )
     })?;
-    let directory = match path.parent() {
-        Some(parent) if !parent.as_os_str().is_empty() => parent,
-        _ => Path::new("."),
-    };
     let mut temporary_name = std::ffi::OsString::from(".");
     temporary_name.push(name);
     temporary_name.push(format!(".{}.tmp", std::process::id()));
-    let temporary = directory.join(temporary_name);
+    Ok(directory_of(path).join(temporary_name))
+}
+
+fn directory_of(path: &Path) -> &Path {
+    match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent,
+        _ => Path::new("."),
+    }
+}
+
+/// Writes `bytes` to a new temporary beside `path` and flushes it to disk; returns its path.
+/// On failure nothing is left.
+fn stage(path: &Path, bytes: &[u8]) -> std::io::Result<std::path::PathBuf> {
+    let temporary = temporary_for(path)?;
     let result = (|| {
         let mut file = std::fs::File::create(&temporary)?;
         file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&temporary, path)
+        file.sync_all()
     })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&temporary);
+    match result {
+        Ok(()) => Ok(temporary),
+        Err(e) => {
+            let _ = std::fs::remove_file(&temporary);
+            Err(e)
+        }
     }
-    result
 }
 
-/// Writes several files, each all or nothing ([`write_atomically`]), in order; if one fails,
-/// those already written by this call are removed, so a failed call leaves none of them (it
-/// does not restore files they replaced).
+/// Removes temporaries that killed runs left beside `path` (`.NAME.PID.tmp` whose process is
+/// gone). Only on Linux, where `/proc` tells which processes live; elsewhere they stay.
+fn remove_stale_temporaries(path: &Path) {
+    if !cfg!(target_os = "linux") {
+        return;
+    }
+    let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+        return;
+    };
+    let prefix = format!(".{name}.");
+    let Ok(entries) = std::fs::read_dir(directory_of(path)) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let Some(pid) = file_name
+            .to_str()
+            .and_then(|n| n.strip_prefix(&prefix))
+            .and_then(|rest| rest.strip_suffix(".tmp"))
+            .and_then(|pid| pid.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid != std::process::id()
+            && !Path::new("/proc").join(pid.to_string()).exists()
+            && entry.file_type().is_ok_and(|t| t.is_file())
+        {
+            let _ = std::fs::remove_file(entry.path());
+        }
+    }
+}
+
+/// Writes `bytes` to `path` all or nothing: the bytes go to a temporary file in the same
+/// directory, which is flushed to disk and then renamed over `path`. If anything fails, the
+/// temporary file is removed and `path` is untouched. Temporaries that killed runs left beside
+/// `path` are removed first.
+///
+/// # Errors
+/// The I/O error, with the path it concerns.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    remove_stale_temporaries(path);
+    let temporary = stage(path, bytes)?;
+    std::fs::rename(&temporary, path).inspect_err(|_| {
+        let _ = std::fs::remove_file(&temporary);
+    })
+}
+
+/// Writes several files in two phases: first every file's bytes go to a temporary beside it,
+/// flushed to disk; only when all are staged are they renamed over their paths, one after the
+/// other. A run killed while computing or staging leaves every previous output untouched (and
+/// temporaries, which the next write of those paths removes); only a kill within the renames,
+/// a few syscalls long, leaves some files new and some old, each of them whole.
+///
+/// If staging fails, the temporaries are removed and nothing changed. If a rename fails, the
+/// files this call already renamed into place are removed as well, so a failed call leaves none
+/// of its files (it does not restore files they replaced).
 ///
 /// # Errors
 /// The path that failed and its I/O error.
 pub fn write_files_atomically(
     files: &[(std::path::PathBuf, Vec<u8>)],
 ) -> Result<(), (std::path::PathBuf, std::io::Error)> {
-    for (k, (path, bytes)) in files.iter().enumerate() {
-        if let Err(e) = write_atomically(path, bytes) {
+    let mut staged = Vec::with_capacity(files.len());
+    for (path, bytes) in files {
+        remove_stale_temporaries(path);
+        match stage(path, bytes) {
+            Ok(temporary) => staged.push(temporary),
+            Err(e) => {
+                for temporary in &staged {
+                    let _ = std::fs::remove_file(temporary);
+                }
+                return Err((path.clone(), e));
+            }
+        }
+    }
+    for (k, ((path, _), temporary)) in files.iter().zip(&staged).enumerate() {
+        if let Err(e) = std::fs::rename(temporary, path) {
             for (done, _) in &files[..k] {
                 let _ = std::fs::remove_file(done);
+            }
+            for temporary in &staged[k..] {
+                let _ = std::fs::remove_file(temporary);
             }
             return Err((path.clone(), e));
         }

@@ -154,7 +154,7 @@ pub fn parse_pts(text: &str) -> Result<Vec<Point2<Real>>, LandmarkProblem> {
                 let n: usize = value
                     .trim()
                     .parse()
-                    .map_err(|_| syntax(line, "n_points is not a whole number"))?;
+                    .map_err(|_| syntax(line, format!("n_points `{}` is not a count", value.trim())))?;
                 if n > MAX_POINTS {
                     return Err(syntax(
                         line,
@@ -405,7 +405,14 @@ pub fn read_landmarks_json(path: &Path) -> Result<Landmarks, LandmarkError> {
 /// The first problem: malformed JSON (with its line), another format or version, a wrong point
 /// count, mixed or unsupported dimensions.
 pub fn parse_landmarks_json(text: &str) -> Result<Landmarks, LandmarkProblem> {
-    let raw: RawLandmarks = serde_json::from_str(text).map_err(|e| syntax(e.line(), e.to_string()))?;
+    if !text.trim_start().starts_with('{') {
+        return Err(syntax(
+            1,
+            "expected a JSON object ({\"format\": \"splineface/landmarks\", …})",
+        ));
+    }
+    let raw: RawLandmarks =
+        serde_json::from_str(text).map_err(|e| syntax(e.line(), crate::io::json_message(&e)))?;
     if raw.format != LANDMARKS_FORMAT {
         return Err(syntax(
             1,
@@ -442,7 +449,12 @@ pub fn parse_landmarks_json(text: &str) -> Result<Landmarks, LandmarkProblem> {
     let points = match dimension {
         2 => LandmarkPoints::Planar(raw.points.iter().map(|p| Point2::new(p[0], p[1])).collect()),
         3 => LandmarkPoints::Spatial(raw.points.iter().map(|p| Point3::new(p[0], p[1], p[2])).collect()),
-        got => return Err(LandmarkProblem::Dimension { got, expected: 3 }),
+        got => {
+            return Err(syntax(
+                1,
+                format!("the points have {got} coordinates each, expected 2 or 3"),
+            ));
+        }
     };
     Ok(Landmarks {
         scheme: raw.scheme,

@@ -39,6 +39,7 @@ enum Command {
     ///
     /// Give one `--landmarks` per `--mesh`, in the same order; several pairs give one reference
     /// from their mean.
+    #[command(allow_negative_numbers = true)]
     FitReference {
         /// A scan: OBJ, PLY, glTF or GLB.
         #[arg(long = "mesh", required = true)]
@@ -68,6 +69,7 @@ enum Command {
     /// Landmark files (`.pts` with 68 iBUG or 40 structure points, or landmark JSON) are
     /// matched to photos by file stem in `--landmarks`; with landmarks and no photos the run is
     /// points-only (no RASL, no texture).
+    #[command(allow_negative_numbers = true)]
     Reconstruct {
         /// Photos (JPEG, PNG, BMP, TIFF, WebP).
         photos: Vec<PathBuf>,
@@ -93,6 +95,7 @@ enum Command {
     },
     /// Run the whole pipeline on the embedded demo subject: render a dozen photos of it under
     /// varied poses, reconstruct the face and compare it with the truth.
+    #[command(allow_negative_numbers = true)]
     Demo {
         /// The directory to write into (created if missing).
         #[arg(long, default_value = "splineface-demo")]
@@ -111,6 +114,7 @@ enum Command {
     },
     /// Render a mesh's orthographic depth map: EXR (float32 `Z` with a coverage channel `A`)
     /// or 16-bit PNG (0 = background), chosen by the output's extension.
+    #[command(allow_negative_numbers = true)]
     RenderDepth {
         /// The mesh: OBJ, PLY, glTF or GLB.
         mesh: PathBuf,
@@ -130,6 +134,7 @@ enum Command {
     /// Compare a reconstruction with a ground-truth scan: align them, render both depth maps
     /// and write the |Δz| heatmap, the depth maps and stats.json (the paper's measures and
     /// millimetre errors) into a directory.
+    #[command(allow_negative_numbers = true)]
     Compare {
         /// The reconstructed face (OBJ, PLY, glTF or GLB).
         reconstruction: PathBuf,
@@ -354,6 +359,10 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
     {
         bail!("{}: the preview must be .png", p.display());
     }
+    check_output_file(out)?;
+    if let Some(p) = preview {
+        check_output_file(p)?;
+    }
     let mesh = read_mesh(mesh_path)?;
     let raster = frame_raster(mesh.positions().iter().copied(), &view, width, height, 0.02)
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh_path.display()))?;
@@ -385,6 +394,67 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
         elapsed.as_secs_f64() * 1e3,
         mesh.triangles().len()
     );
+    Ok(())
+}
+
+/// Checks, before any work, that `out` can be the output directory: it is a directory or can
+/// be created as one (its nearest existing ancestor is a directory in which a file can be
+/// made). Catches a file in the way, a read-only file system or a missing permission up front
+/// rather than after minutes of computing.
+fn check_output_dir(out: &Path) -> Result<()> {
+    if out.exists() && !out.is_dir() {
+        bail!("{}: exists and is not a directory", out.display());
+    }
+    let existing = out
+        .ancestors()
+        .map(|a| {
+            if a.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                a
+            }
+        })
+        .find(|a| a.exists())
+        .unwrap_or(Path::new("."));
+    if !existing.is_dir() {
+        bail!(
+            "{}: cannot be created, {} is not a directory",
+            out.display(),
+            existing.display()
+        );
+    }
+    probe_writable(existing).with_context(|| format!("{}: cannot write there", out.display()))
+}
+
+/// Checks, before any work, that an output file can be written: its directory exists and a
+/// file can be made in it, and the path itself is not a directory.
+fn check_output_file(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        bail!("{}: is a directory", path.display());
+    }
+    let directory = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !directory.exists() {
+        bail!(
+            "{}: the directory {} does not exist",
+            path.display(),
+            directory.display()
+        );
+    }
+    if !directory.is_dir() {
+        bail!("{}: {} is not a directory", path.display(), directory.display());
+    }
+    probe_writable(directory).with_context(|| format!("{}: cannot write there", path.display()))
+}
+
+/// Makes and removes an empty file in `directory`.
+fn probe_writable(directory: &Path) -> Result<()> {
+    let probe = directory.join(format!(".splineface-probe-{}", std::process::id()));
+    std::fs::File::create(&probe)
+        .with_context(|| format!("cannot create a file in {}", directory.display()))?;
+    let _ = std::fs::remove_file(&probe);
     Ok(())
 }
 
@@ -429,9 +499,15 @@ struct CompareArgs {
 fn compare(args: &CompareArgs) -> Result<()> {
     let scale_a = units_to_mm(&args.units.0, "--reconstruction-units")?;
     let scale_b = units_to_mm(&args.units.1, "--truth-units")?;
-    if args.out.exists() && !args.out.is_dir() {
-        bail!("{}: exists and is not a directory", args.out.display());
+    if !(16..=MAX_SIDE).contains(&args.options.size) {
+        bail!("--size {} must be between 16 and {MAX_SIDE}", args.options.size);
     }
+    if let Some(max) = args.options.heatmap_max
+        && !(max > 0.0 && max.is_finite())
+    {
+        bail!("--max {max} must be a positive number of millimetres");
+    }
+    check_output_dir(&args.out)?;
     let rec = read_mesh(&args.reconstruction)?;
     let truth = read_mesh(&args.truth)?;
     let structures = match &args.landmarks {
@@ -566,6 +642,8 @@ fn fit_reference(
             landmarks.len()
         );
     }
+    options.validate()?;
+    check_output_file(out)?;
     let mut scans = Vec::with_capacity(meshes.len());
     for (mesh_path, landmark_path) in meshes.iter().zip(landmarks) {
         let mesh = read_mesh(mesh_path)?;
@@ -668,9 +746,7 @@ fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
 }
 
 fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        bail!("{}: exists and is not a directory", out.display());
-    }
+    check_output_dir(out)?;
     let mut directories: Vec<PathBuf> = files
         .iter()
         .filter_map(|(p, _)| p.parent().map(|d| out.join(d)))
@@ -725,6 +801,7 @@ fn reconstruct_command(
     output: &OutputArgs,
 ) -> Result<()> {
     let options = output.options()?;
+    check_output_dir(out)?;
     let predictor = match landmark_model {
         Some(path) => {
             progress(&format!("reading the landmark model {}", path.display()));
@@ -732,9 +809,6 @@ fn reconstruct_command(
         }
         None => None,
     };
-    if out.exists() && !out.is_dir() {
-        bail!("{}: exists and is not a directory", out.display());
-    }
     let reference = match reference_path {
         Some(path) => {
             let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
@@ -905,9 +979,13 @@ fn reconstruct_command(
 
 fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &OutputArgs) -> Result<()> {
     let options = output.options()?;
-    if out.exists() && !out.is_dir() {
-        bail!("{}: exists and is not a directory", out.display());
+    if !(1..=200).contains(&photos) {
+        bail!("--photos {photos}: between 1 and 200, please");
     }
+    if !(noise >= 0.0 && noise.is_finite()) {
+        bail!("--noise {noise}: must be a finite percentage, 0 or more");
+    }
+    check_output_dir(out)?;
     let start = std::time::Instant::now();
     progress(&format!(
         "photographing the demo subject: {photos} photos, landmark noise {noise}% of the eye distance"

@@ -73,6 +73,49 @@ pub struct ReferenceOptions {
     pub fit_margin: Real,
 }
 
+impl ReferenceOptions {
+    /// Checks every option's range (the grid 4 to 256, the weights and spacings finite and in
+    /// range), so callers can refuse bad settings before reading any scan.
+    ///
+    /// # Errors
+    /// [`ReferenceError::Option`] naming the first option out of range.
+    pub fn validate(&self) -> Result<(), ReferenceError> {
+        if !(4..=256).contains(&self.grid) {
+            return Err(ReferenceError::Option {
+                name: "grid",
+                value: self.grid.to_string(),
+                expected: "4 to 256 control points a side",
+            });
+        }
+        check_option("smoothness", self.smoothness, self.smoothness >= 0.0, "≥ 0")?;
+        check_option(
+            "sample spacing",
+            self.sample_spacing,
+            self.sample_spacing > 0.0,
+            "> 0 canonical units",
+        )?;
+        check_option(
+            "brow lift",
+            self.brow_lift,
+            self.brow_lift >= 0.0,
+            "≥ 0 canonical units",
+        )?;
+        check_option(
+            "margin",
+            self.margin,
+            (1.0..=3.0).contains(&self.margin),
+            "1 to 3",
+        )?;
+        check_option(
+            "fit margin",
+            self.fit_margin,
+            (0.5..=self.margin).contains(&self.fit_margin),
+            "0.5 to the clip margin",
+        )?;
+        Ok(())
+    }
+}
+
 impl Default for ReferenceOptions {
     /// The options the project's default reference was built with; the grid size and λ were
     /// chosen by measurement (see `reference/README.md`).
@@ -306,38 +349,7 @@ pub fn build_reference(
     if scans.is_empty() {
         return Err(ReferenceError::NoScans);
     }
-    if !(4..=256).contains(&options.grid) {
-        return Err(ReferenceError::Option {
-            name: "grid",
-            value: options.grid.to_string(),
-            expected: "4 to 256 control points a side",
-        });
-    }
-    check_option("smoothness", options.smoothness, options.smoothness >= 0.0, "≥ 0")?;
-    check_option(
-        "sample spacing",
-        options.sample_spacing,
-        options.sample_spacing > 0.0,
-        "> 0 canonical units",
-    )?;
-    check_option(
-        "brow lift",
-        options.brow_lift,
-        options.brow_lift >= 0.0,
-        "≥ 0 canonical units",
-    )?;
-    check_option(
-        "margin",
-        options.margin,
-        (1.0..=3.0).contains(&options.margin),
-        "1 to 3",
-    )?;
-    check_option(
-        "fit margin",
-        options.fit_margin,
-        (0.5..=options.margin).contains(&options.fit_margin),
-        "0.5 to the clip margin",
-    )?;
+    options.validate()?;
 
     // 1. Unify every scan; the reference structure is the mean.
     let mut meshes = Vec::with_capacity(scans.len());

@@ -119,6 +119,13 @@ fn load_buffer(
                         format!("{}: {}: {e}", location(), path.display()),
                     ))
                 };
+                // Looked at before opening: opening a named pipe blocks until someone writes.
+                if !std::fs::metadata(&path).map_err(io)?.is_file() {
+                    return Err(syntax(
+                        location(),
+                        format!("{} is not a regular file", path.display()),
+                    ));
+                }
                 let file = std::fs::File::open(&path).map_err(io)?;
                 let metadata = file.metadata().map_err(io)?;
                 if !metadata.is_file() {

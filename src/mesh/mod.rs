@@ -312,12 +312,7 @@ pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MeshError> {
         Some(MeshFormat::Obj) => {
             let bytes =
                 crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| error(e.into()))?;
-            let text = std::str::from_utf8(&bytes).map_err(|e| {
-                error(syntax(
-                    format!("byte {}", e.valid_up_to()),
-                    "the file is not UTF-8 text",
-                ))
-            })?;
+            let text = crate::io::utf8_text(&bytes).map_err(|message| error(syntax("OBJ", message)))?;
             parse_obj(text).map_err(error)
         }
         Some(MeshFormat::Ply) => {

@@ -292,3 +292,37 @@ fn detection_and_landmarks_on_the_fixture() {
     );
     assert!(bald.len() >= 5);
 }
+
+/// The subject among a photo's faces: the only one, the largest when the others are clearly
+/// smaller (in any order), none when the two largest are of about one size.
+#[test]
+fn the_subject_face_is_the_clearly_largest() {
+    use splineface::detect::{AMBIGUOUS_FACE_AREA, Detection, SubjectProblem, subject_face};
+    let face = |side: i64, left: i64| Detection {
+        bbox: FaceBox::from_size(left, 10, side, side),
+        score: 5.0,
+    };
+    assert_eq!(subject_face(&[]), Err(SubjectProblem::NoFace));
+    let (only, note) = subject_face(&[face(100, 0)]).unwrap();
+    assert_eq!((only, note), (face(100, 0), None));
+    // A background face of a third of the width: the largest is used, with a note.
+    let (subject, note) = subject_face(&[face(40, 300), face(120, 0), face(30, 500)]).unwrap();
+    assert_eq!(subject, face(120, 0));
+    assert_eq!(
+        note.unwrap(),
+        "3 faces found; the largest is used (9.0× the next one's area)"
+    );
+    // Just under and at the threshold: 70×70 is 0.49 of 100×100, 71×71 is 0.5041.
+    const { assert!(0.49 < AMBIGUOUS_FACE_AREA && AMBIGUOUS_FACE_AREA <= 0.5041) };
+    assert!(subject_face(&[face(100, 0), face(70, 200)]).is_ok());
+    let problem = subject_face(&[face(71, 200), face(100, 0)]).unwrap_err();
+    assert_eq!(
+        problem,
+        SubjectProblem::Ambiguous {
+            count: 2,
+            first: 10_000,
+            second: 5_041
+        }
+    );
+    assert!(problem.to_string().contains("ambiguous"));
+}

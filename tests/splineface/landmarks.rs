@@ -185,7 +185,10 @@ fn json_landmarks_reject_malformed_input() {
             json_with(&points_json(68, 2), "structure40"),
             "68 points, expected 40",
         ),
-        (json_with(&points_json(40, 4), "structure40"), "the points are 4D"),
+        (
+            json_with(&points_json(40, 4), "structure40"),
+            "the points have 4 coordinates each, expected 2 or 3",
+        ),
         (
             json_with("[[1, 2], [1, 2, 3]]", "structure40"),
             "2 points, expected 40",

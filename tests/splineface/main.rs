@@ -4,6 +4,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod align;
+mod bad_inputs;
 mod bspline_basis;
 mod bspline_fit;
 mod bspline_knots;

@@ -175,6 +175,9 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
         std::fs::copy(&p, mixed.join(p.file_name().unwrap())).unwrap();
     }
     std::fs::write(mixed.join("photo03.png"), b"not a png").unwrap();
+    // A photo whose landmark file is damaged, and one without a landmark file.
+    std::fs::write(mixed.join("photo04.pts"), "version: 1\nn_points: 68\n{\n1 2\n").unwrap();
+    std::fs::remove_file(mixed.join("photo05.pts")).unwrap();
     let out = dir.join("mixed-out");
     let run = splineface(&[
         "reconstruct",
@@ -189,13 +192,39 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("photo03.png"));
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    assert_eq!(report["photos_used"].as_array().unwrap().len(), 5);
+    assert_eq!(report["photos_used"].as_array().unwrap().len(), 3, "{report}");
+    let skipped = report["photos_skipped"].to_string();
+    for reason in [
+        "photo03.png: cannot read the image",
+        "photo04.png: its landmarks: ",
+        "photo04.pts: the file ends after 1 of 68 points",
+        "photo05.png: no landmark file photo05.pts or photo05.json",
+    ] {
+        assert!(skipped.contains(reason), "{reason}: {skipped}");
+    }
+    // Asking for more photos than are usable stops the run, listing each skipped photo.
+    let strict = splineface(&[
+        "reconstruct",
+        "--photos",
+        &s(&mixed),
+        "--landmarks",
+        &s(&mixed),
+        "--out",
+        &s(&dir.join("strict")),
+        "--min-photos",
+        "4",
+    ]);
+    let message = String::from_utf8_lossy(&strict.stderr);
+    assert_eq!(strict.status.code(), Some(1), "{message}");
     assert!(
-        report["photos_skipped"][0]
-            .as_str()
-            .unwrap()
-            .contains("photo03.png")
+        message.contains("3 usable photos, at least 4 needed (--min-photos)"),
+        "{message}"
     );
+    assert!(
+        message.contains("skipped") && message.contains("photo05.png"),
+        "{message}"
+    );
+    assert!(!dir.join("strict").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -601,5 +630,127 @@ fn outputs_are_repeatable_across_runs_and_thread_counts() {
             }
         }
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Every file under `dir` (temporaries aside), by relative path; `report.json` without its
+/// timings, which differ from run to run.
+fn outputs_in(dir: &Path) -> (std::collections::BTreeMap<PathBuf, Vec<u8>>, usize) {
+    let mut files = std::collections::BTreeMap::new();
+    let mut temporaries = 0;
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        let Ok(entries) = std::fs::read_dir(&d) else {
+            continue;
+        };
+        for entry in entries {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if path.is_dir() {
+                stack.push(path);
+            } else if name.starts_with('.') && name.ends_with(".tmp") {
+                temporaries += 1;
+            } else {
+                let mut bytes = std::fs::read(&path).unwrap();
+                if name == "report.json" {
+                    let mut v: serde_json::Value = serde_json::from_slice(&bytes)
+                        .unwrap_or_else(|e| panic!("{}: not whole JSON: {e}", path.display()));
+                    v["timings"] = serde_json::Value::Null;
+                    v["rasl"]["seconds"] = serde_json::Value::Null;
+                    bytes = serde_json::to_vec(&v).unwrap();
+                }
+                files.insert(path.strip_prefix(dir).unwrap().to_path_buf(), bytes);
+            }
+        }
+    }
+    (files, temporaries)
+}
+
+/// Runs killed (SIGKILL) at times spread over a whole run, into a folder holding a previous
+/// run's outputs: afterwards every file there is byte for byte either the previous version or
+/// the new one, never cut short; and the next run completes and clears the temporaries the
+/// killed runs left.
+#[test]
+fn a_killed_run_leaves_every_output_whole() {
+    let dir = scratch("killed");
+    // Two batches of photos: the previous outputs come from one, the new from the other.
+    for (name, seed) in [("photos-old", 1), ("photos", 2)] {
+        let photos = dir.join(name);
+        std::fs::create_dir_all(&photos).unwrap();
+        let scene = scene(&SceneOptions {
+            photos: 6,
+            seed,
+            ..SceneOptions::default()
+        })
+        .unwrap();
+        for (p, bytes) in scene.files().unwrap() {
+            std::fs::write(photos.join(p), bytes).unwrap();
+        }
+    }
+    let command = |out: &Path, photos: &str| {
+        let photos = dir.join(photos);
+        let mut command = Command::new(env!("CARGO_BIN_EXE_splineface"));
+        command
+            .args(["reconstruct", "--photos", &s(&photos), "--landmarks", &s(&photos)])
+            .args(["--out", &s(out)])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+        command
+    };
+    // The previous outputs and the new ones, each from a whole run.
+    let (old_dir, new_dir) = (dir.join("old"), dir.join("new"));
+    assert!(command(&old_dir, "photos-old").status().unwrap().success());
+    let start = std::time::Instant::now();
+    assert!(command(&new_dir, "photos").status().unwrap().success());
+    let whole_run = start.elapsed();
+    let (old, _) = outputs_in(&old_dir);
+    let (new, _) = outputs_in(&new_dir);
+    assert_eq!(old.keys().collect::<Vec<_>>(), new.keys().collect::<Vec<_>>());
+
+    let target = dir.join("target");
+    let (mut all_old, mut mixed, mut all_new, mut temporaries_seen) = (0, 0, 0, 0);
+    // Kill times: at once, then from 55% to 115% of a whole run, where the writing happens.
+    for k in 0..21u32 {
+        let _ = std::fs::remove_dir_all(&target);
+        std::fs::create_dir_all(target.join("aligned")).unwrap();
+        for name in old.keys() {
+            std::fs::copy(old_dir.join(name), target.join(name)).unwrap();
+        }
+        let mut child = command(&target, "photos").spawn().unwrap();
+        if k > 0 {
+            std::thread::sleep(whole_run.mul_f64(0.52 + 0.03 * f64::from(k)));
+        }
+        let _ = child.kill();
+        child.wait().unwrap();
+        let (now, temporaries) = outputs_in(&target);
+        temporaries_seen += temporaries;
+        assert_eq!(now.keys().collect::<Vec<_>>(), old.keys().collect::<Vec<_>>());
+        let (mut olds, mut news) = (0, 0);
+        for (name, bytes) in &now {
+            if old[name] == new[name] {
+                assert!(*bytes == old[name], "kill {k}: {} is damaged", name.display());
+            } else if *bytes == old[name] {
+                olds += 1;
+            } else if *bytes == new[name] {
+                news += 1;
+            } else {
+                panic!("kill {k}: {} is neither the old nor the new file", name.display());
+            }
+        }
+        match (olds, news) {
+            (_, 0) => all_old += 1,
+            (0, _) => all_new += 1,
+            _ => mixed += 1,
+        }
+    }
+    // The first kill comes before any output could be written.
+    assert!(all_old > 0, "{all_old} old, {mixed} mixed, {all_new} new");
+    assert!(command(&target, "photos").status().unwrap().success());
+    let (after, temporaries) = outputs_in(&target);
+    assert_eq!(temporaries, 0, "the temporaries of killed runs are cleared");
+    assert!(after == new, "a completed run writes the new outputs");
+    eprintln!(
+        "kills: {all_old} left the old outputs, {mixed} a mix, {all_new} the new; {temporaries_seen} temporaries seen; a run takes {whole_run:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
