@@ -240,5 +240,10 @@ pub fn decode_photo(path: &Path) -> Result<image::DynamicImage, PhotoError> {
     if width.saturating_mul(height) > MAX_PIXELS {
         return Err(error(PhotoProblem::Huge { width, height }));
     }
-    reader()?.decode().map_err(|e| unreadable(&e))
+    // A decoder that panics on a malformed file (none known; the `photo` fuzz target looks)
+    // fails this photo, not the run.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        reader()?.decode().map_err(|e| unreadable(&e))
+    }))
+    .unwrap_or_else(|_| Err(unreadable(&"the decoder failed on this file")))
 }

@@ -30,9 +30,11 @@ pub(super) fn read_gltf(path: &Path) -> Result<TriangleMesh, MeshProblem> {
 /// coordinates.
 pub fn parse_gltf(bytes: &[u8], base: Option<&Path>) -> Result<TriangleMesh, MeshProblem> {
     check_glb_header(bytes)?;
+    check_position_accessors(bytes)?;
     // The `gltf` crate (1.4) can panic on inconsistent files: fuzzing found an index out of
-    // bounds in its own validation (gltf-json mesh.rs:151). A panic there is this file's
-    // problem, not the program's, so it becomes an error.
+    // bounds in its own validation (gltf-json mesh.rs:151, a POSITION attribute naming a
+    // missing accessor, which `check_position_accessors` now refuses first). Any other panic
+    // there is this file's problem, not the program's, so it becomes an error.
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| build_mesh(bytes, base))).unwrap_or_else(|_| {
         Err(syntax(
             "glTF",
@@ -211,6 +213,41 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), MeshProblem> {
             )));
         }
         at += 8 + length;
+    }
+    Ok(())
+}
+
+/// Refuses a primitive whose `POSITION` attribute names an accessor the file does not have,
+/// before the `gltf` crate's validation indexes the accessors with it and panics (gltf-json
+/// 1.4.1 mesh.rs:151; two fuzzed files found it). Malformed JSON passes through, for the
+/// `gltf` crate to report.
+fn check_position_accessors(bytes: &[u8]) -> Result<(), MeshProblem> {
+    let json = if bytes.starts_with(b"glTF") {
+        // `check_glb_header` has checked the chunk lengths.
+        let length = bytes
+            .get(12..16)
+            .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+        bytes.get(20..20 + length).unwrap_or_default()
+    } else {
+        bytes
+    };
+    let Ok(root) = serde_json::from_slice::<serde_json::Value>(json) else {
+        return Ok(());
+    };
+    let accessors = root["accessors"].as_array().map_or(0, Vec::len);
+    let meshes = root["meshes"].as_array().map_or(&[][..], Vec::as_slice);
+    for (m, mesh) in meshes.iter().enumerate() {
+        let primitives = mesh["primitives"].as_array().map_or(&[][..], Vec::as_slice);
+        for (p, primitive) in primitives.iter().enumerate() {
+            if let Some(index) = primitive["attributes"]["POSITION"].as_u64()
+                && index >= accessors as u64
+            {
+                return Err(syntax(
+                    format!("mesh {m} primitive {p}"),
+                    format!("POSITION names accessor {index}, and the file has {accessors}"),
+                ));
+            }
+        }
     }
     Ok(())
 }
