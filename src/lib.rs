@@ -21,7 +21,8 @@
 //!
 //! * [`mesh`]: triangle meshes and their files (OBJ, PLY, glTF/GLB in; OBJ, PLY out) and the
 //!   frontal rasteriser; [`landmarks`]: landmark files (`.pts`, JSON, vertex indices);
-//!   [`io`]: all-or-nothing file writing.
+//!   [`io`]: inputs read within limits (no devices, pipes or oversized files) and outputs
+//!   written whole (staged, then renamed).
 //!
 //! * [`align`]: the frontal 2D structure of a batch of photos ([`align::procrustes_frontal`]
 //!   from their points alone); [`depth`]: the 3D structure by the paper's pose/depth

@@ -199,6 +199,9 @@ fn score(method: &Method, inputs: &[Input], subject: &Subject) -> Result<Compare
                     ..DepthOptions::default()
                 },
                 deformation,
+                // The error-against-photos sweep measures single photos too (it is where the
+                // default minimum of two comes from).
+                min_photos: 1,
                 ..PipelineOptions::default()
             };
             let stripped: Vec<Input>;
