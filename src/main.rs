@@ -843,7 +843,17 @@ fn reconstruct_command(
         progress(&format!("points only: {} landmark files", files.len()));
         for file in files {
             match read_photo_points(&file) {
-                Ok(points) => inputs.push(Input { points, image: None }),
+                Ok(points) => {
+                    if inputs.iter().any(|i: &Input| i.points.name == points.name) {
+                        skipped.push(format!(
+                            "{}: another landmark file has the name `{}` (STEM.pts and STEM.json?)",
+                            file.display(),
+                            points.name
+                        ));
+                    } else {
+                        inputs.push(Input { points, image: None });
+                    }
+                }
                 Err(e) => skipped.push(format!("{e:#}")),
             }
         }
@@ -856,11 +866,23 @@ fn reconstruct_command(
             );
         }
         progress(&format!("reading {} photos", photo_paths.len()));
+        // Photos are known by their stems (landmark files are matched by them, and the report
+        // names them): a second photo with a stem already taken is skipped.
+        let mut stems: std::collections::BTreeMap<String, &Path> = std::collections::BTreeMap::new();
         for path in &photo_paths {
             let stem = path
                 .file_stem()
                 .map(|s| s.to_string_lossy().into_owned())
                 .unwrap_or_default();
+            if let Some(first) = stems.get(&stem) {
+                skipped.push(format!(
+                    "{}: {} has the same name `{stem}` (photos are matched to landmark files by name)",
+                    path.display(),
+                    first.display()
+                ));
+                continue;
+            }
+            stems.insert(stem.clone(), path);
             let file = landmark_dir.and_then(|dir| landmark_file(dir, &stem));
             let decoded = match splineface::align::decode_photo(path) {
                 Ok(d) => d,

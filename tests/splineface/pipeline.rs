@@ -178,6 +178,8 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     // A photo whose landmark file is damaged, and one without a landmark file.
     std::fs::write(mixed.join("photo04.pts"), "version: 1\nn_points: 68\n{\n1 2\n").unwrap();
     std::fs::remove_file(mixed.join("photo05.pts")).unwrap();
+    // The same photo under another extension: its name is taken by the first in order.
+    std::fs::copy(mixed.join("photo02.png"), mixed.join("photo02.bmp")).unwrap();
     let out = dir.join("mixed-out");
     let run = splineface(&[
         "reconstruct",
@@ -199,6 +201,8 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
         "photo04.png: its landmarks: ",
         "photo04.pts: the file ends after 1 of 68 points",
         "photo05.png: no landmark file photo05.pts or photo05.json",
+        "photo02.png: ",
+        "photo02.bmp has the same name `photo02`",
     ] {
         assert!(skipped.contains(reason), "{reason}: {skipped}");
     }
