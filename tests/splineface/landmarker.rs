@@ -107,6 +107,33 @@ fn damaged_models_are_errors() {
         ShapePredictor::parse(&huge),
         Err(ModelProblem::Malformed { .. })
     ));
+    // Counts that each fit the file but whose product does not: a 1 MB model with a mean
+    // shape of 200,000 values and a tree of 100,000 splits. The leaves' storage was reserved
+    // as leaves × shape values (2·10¹⁰ floats, an allocation failure that aborts); it is now
+    // bounded by the file, and the missing leaves are an error.
+    let mut product = Vec::new();
+    int(&mut product, 1);
+    int(&mut product, 200_000);
+    int(&mut product, 1);
+    for _ in 0..200_000 {
+        int(&mut product, 0);
+        int(&mut product, 0);
+    }
+    int(&mut product, 1); // cascades
+    int(&mut product, 1); // trees
+    int(&mut product, 100_000); // splits
+    for _ in 0..100_000 {
+        for _ in 0..4 {
+            int(&mut product, 0);
+        }
+    }
+    int(&mut product, 100_001); // leaves
+    product.extend(std::iter::repeat_n(0, 2 * 100_001)); // room enough for that count
+    assert!(product.len() < 2_000_000);
+    assert!(matches!(
+        ShapePredictor::parse(&product),
+        Err(ModelProblem::Truncated(_) | ModelProblem::Malformed { .. })
+    ));
     // Another version.
     let mut other = good.clone();
     other[1] = 2;
