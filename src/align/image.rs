@@ -211,9 +211,8 @@ impl GreyImage {
 }
 
 /// Reads and decodes a photo in any format the `image` crate has enabled, within limits: the
-/// file must be a regular file of at most [`crate::io::MAX_LARGE_INPUT_BYTES`], its header
-/// must announce at most 100 megapixels (checked before decoding), and decoding may allocate
-/// at most 2 GiB.
+/// file must be a regular file of at most [`crate::io::MAX_LARGE_INPUT_BYTES`], and
+/// [`decode_photo_bytes`]'s limits apply.
 ///
 /// # Errors
 /// A [`PhotoError`] naming the file: unreadable, of an unknown format, too large, or failing
@@ -223,11 +222,24 @@ pub fn decode_photo(path: &Path) -> Result<image::DynamicImage, PhotoError> {
         file: path.to_path_buf(),
         problem,
     };
+    let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES)
+        .map_err(|e| error(PhotoProblem::Unreadable(e.to_string())))?;
+    decode_photo_bytes(&bytes).map_err(error)
+}
+
+/// Decodes a photo from its bytes (format by content), within limits: the header must
+/// announce at most [`MAX_PIXELS`] (checked before decoding), and decoding may allocate at
+/// most 2 GiB. A decoder that panics on a malformed file (none is known; the `photo` fuzz
+/// target looks) fails this photo, not the program.
+///
+/// # Errors
+/// [`PhotoProblem::Unreadable`] for an unknown format or a decoding failure,
+/// [`PhotoProblem::Huge`] for a header beyond the limit.
+pub fn decode_photo_bytes(bytes: &[u8]) -> Result<image::DynamicImage, PhotoProblem> {
     let unreadable =
-        |e: &dyn std::fmt::Display| error(PhotoProblem::Unreadable(e.to_string().trim_end().to_owned()));
-    let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| unreadable(&e))?;
-    let reader = || -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, PhotoError> {
-        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes.as_slice()))
+        |e: &dyn std::fmt::Display| PhotoProblem::Unreadable(e.to_string().trim_end().to_owned());
+    let reader = || -> Result<image::ImageReader<std::io::Cursor<&[u8]>>, PhotoProblem> {
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
             .with_guessed_format()
             .map_err(|e| unreadable(&e))?;
         let mut limits = image::Limits::default();
@@ -238,10 +250,8 @@ pub fn decode_photo(path: &Path) -> Result<image::DynamicImage, PhotoError> {
     let (width, height) = reader()?.into_dimensions().map_err(|e| unreadable(&e))?;
     let (width, height) = (width as usize, height as usize);
     if width.saturating_mul(height) > MAX_PIXELS {
-        return Err(error(PhotoProblem::Huge { width, height }));
+        return Err(PhotoProblem::Huge { width, height });
     }
-    // A decoder that panics on a malformed file (none known; the `photo` fuzz target looks)
-    // fails this photo, not the run.
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
         reader()?.decode().map_err(|e| unreadable(&e))
     }))

@@ -17,7 +17,9 @@ mod image;
 mod procrustes;
 mod rasl;
 
-pub use image::{GreyImage, MAX_PIXELS, MIN_SIDE, PhotoError, PhotoProblem, decode_photo};
+pub use image::{
+    GreyImage, MAX_PIXELS, MIN_SIDE, PhotoError, PhotoProblem, decode_photo, decode_photo_bytes,
+};
 pub use procrustes::procrustes_frontal;
 pub use rasl::{Dropped, RaslOptions, RaslPhoto, RaslResult, rasl_frontal, singular_value_threshold};
 

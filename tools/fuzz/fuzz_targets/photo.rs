@@ -1,16 +1,13 @@
 #![no_main]
-//! Photo decoding up to where the project takes over: the image crate decodes (its own
-//! limits), then GreyImage validates.
+//! Photo decoding up to where the project takes over and beyond: `align::decode_photo_bytes`
+//! (the image crate with the project's limits), then `GreyImage`'s checks, mirroring and
+//! gradients, and face detection on small images. `decode_photo_bytes` catches a decoder's
+//! panic (the photo is then refused); libfuzzer-sys's panic hook still aborts on it, so such a
+//! panic is reported here rather than hidden.
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let mut reader = image::ImageReader::new(std::io::Cursor::new(data));
-    let mut limits = image::Limits::default();
-    limits.max_alloc = Some(64 * 1024 * 1024);
-    reader.limits(limits);
-    if let Ok(reader) = reader.with_guessed_format()
-        && let Ok(decoded) = reader.decode()
-    {
+    if let Ok(decoded) = splineface::align::decode_photo_bytes(data) {
         if let Ok(grey) = splineface::align::GreyImage::from_dynamic(&decoded) {
             let _ = grey.mirrored().gradients();
         }
