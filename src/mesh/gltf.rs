@@ -219,9 +219,31 @@ fn check_glb_header(bytes: &[u8]) -> Result<(), MeshProblem> {
 
 /// Refuses a primitive whose `POSITION` attribute names an accessor the file does not have,
 /// before the `gltf` crate's validation indexes the accessors with it and panics (gltf-json
-/// 1.4.1 mesh.rs:151; two fuzzed files found it). Malformed JSON passes through, for the
-/// `gltf` crate to report.
+/// 1.4.1 mesh.rs:151; three fuzzed files found it). The JSON is read into just the fields
+/// involved, the way the `gltf` crate reads it: unknown fields are skipped unchecked (a first
+/// version parsed a `serde_json::Value`, which refuses invalid UTF-8 in a key the gltf crate
+/// skips, and so let a fuzzed file through). JSON the `gltf` crate will refuse anyway passes
+/// through, for it to report.
 fn check_position_accessors(bytes: &[u8]) -> Result<(), MeshProblem> {
+    use serde::de::IgnoredAny;
+    #[derive(serde::Deserialize)]
+    struct Document {
+        #[serde(default)]
+        accessors: Vec<IgnoredAny>,
+        #[serde(default)]
+        meshes: Vec<Mesh>,
+    }
+    #[derive(serde::Deserialize)]
+    struct Mesh {
+        #[serde(default)]
+        primitives: Vec<Primitive>,
+    }
+    #[derive(serde::Deserialize)]
+    struct Primitive {
+        // A map, as the gltf crate reads it: a repeated key keeps its last value.
+        #[serde(default)]
+        attributes: std::collections::BTreeMap<String, serde_json::Value>,
+    }
     let json = if bytes.starts_with(b"glTF") {
         // `check_glb_header` has checked the chunk lengths.
         let length = bytes
@@ -231,15 +253,16 @@ fn check_position_accessors(bytes: &[u8]) -> Result<(), MeshProblem> {
     } else {
         bytes
     };
-    let Ok(root) = serde_json::from_slice::<serde_json::Value>(json) else {
+    let Ok(document) = serde_json::from_slice::<Document>(json) else {
         return Ok(());
     };
-    let accessors = root["accessors"].as_array().map_or(0, Vec::len);
-    let meshes = root["meshes"].as_array().map_or(&[][..], Vec::as_slice);
-    for (m, mesh) in meshes.iter().enumerate() {
-        let primitives = mesh["primitives"].as_array().map_or(&[][..], Vec::as_slice);
-        for (p, primitive) in primitives.iter().enumerate() {
-            if let Some(index) = primitive["attributes"]["POSITION"].as_u64()
+    let accessors = document.accessors.len();
+    for (m, mesh) in document.meshes.iter().enumerate() {
+        for (p, primitive) in mesh.primitives.iter().enumerate() {
+            if let Some(index) = primitive
+                .attributes
+                .get("POSITION")
+                .and_then(serde_json::Value::as_u64)
                 && index >= accessors as u64
             {
                 return Err(syntax(

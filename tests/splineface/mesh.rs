@@ -563,27 +563,41 @@ fn a_glb_header_claiming_gigabytes_is_refused_without_allocating() {
     std::fs::remove_file(&path).unwrap();
 }
 
-/// Found by fuzzing (`tools/fuzz`, target `glb`), twice: 592-byte GLBs whose primitive's
-/// POSITION names a missing accessor made the `gltf` crate's validation panic (index out of
-/// bounds, gltf-json mesh.rs:151). They are now refused before that validation, with an error
-/// naming the file, the primitive and the accessor (and no panic message on the terminal).
+/// Found by fuzzing (`tools/fuzz`, target `glb`), three times: 592-byte GLBs whose
+/// primitive's POSITION names a missing accessor made the `gltf` crate's validation panic
+/// (index out of bounds, gltf-json mesh.rs:151). They are now refused before that validation,
+/// with an error naming the file, the primitive and the accessor (and no panic message on the
+/// terminal). The third got past a first guard: its accessors' key is mangled and an unknown
+/// key holds invalid UTF-8, which the gltf crate skips but a `serde_json::Value` refuses.
 #[test]
 fn glbs_that_panicked_the_gltf_crate_are_errors() {
-    let files: [&[u8]; 2] = [
+    let files: [&[u8]; 3] = [
         include_bytes!("../data/fuzz-glb-validation-panic.glb"),
         include_bytes!("../data/fuzz-glb-validation-panic-2.glb"),
+        include_bytes!("../data/fuzz-glb-validation-panic-3.glb"),
     ];
     for (k, bytes) in files.iter().enumerate() {
         let path = std::env::temp_dir().join(format!("splineface-panic-{k}-{}.glb", std::process::id()));
         std::fs::write(&path, bytes).unwrap();
         let error = splineface::mesh::read_mesh(&path).unwrap_err().to_string();
         assert!(error.starts_with(&path.display().to_string()), "{error}");
+        let accessor = if k == 2 { 1 } else { 0 };
         assert!(
-            error.contains("mesh 0 primitive 0: POSITION names accessor 0, and the file has 0"),
+            error.contains(&format!(
+                "mesh 0 primitive 0: POSITION names accessor {accessor}, and the file has 0"
+            )),
             "{error}"
         );
         std::fs::remove_file(&path).unwrap();
-    }
-    // The guard is not the only net: whatever else panics inside the gltf crate is caught
-    // (checked by the glb fuzz target, which aborts on an escaped panic).
+    } // A repeated key keeps its last value, as the gltf crate reads it: the guard looks at 5.
+    let repeated =
+        br#"{"asset": {"version": "2.0"}, "accessors": [{"componentType": 5126, "count": 3, "type": "VEC3"}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "POSITION": 5}}]}]}"#;
+    let error = splineface::mesh::parse_gltf(repeated, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("POSITION names accessor 5, and the file has 1"),
+        "{error}"
+    );
 }
