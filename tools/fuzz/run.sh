@@ -14,7 +14,7 @@ runs="${2:--1}"
 shift $(( $# < 2 ? $# : 2 ))
 targets=("$@")
 if [ ${#targets[@]} -eq 0 ]; then
-    targets=(pts landmarks_json obj ply surface_json reference_json shape_predictor photo glb)
+    targets=(pts landmarks_json vertex_indices obj ply surface_json reference_json shape_predictor photo glb)
 fi
 cargo +nightly fuzz build --fuzz-dir . >/dev/null
 for target in "${targets[@]}"; do
