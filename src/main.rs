@@ -1169,23 +1169,14 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     Ok(())
 }
 
-/// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::subject_face`]):
+/// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::landmark_subject`]):
 /// its 40 points, and a note when smaller faces were ignored.
 fn find_landmarks(
     model: &splineface::landmarker::ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
 ) -> std::result::Result<(PhotoPoints, Option<String>), String> {
-    use splineface::detect::{detect_faces, landmark_box, subject_face};
-    let (largest, note) = subject_face(&detect_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
-    let intensity = splineface::landmarker::Intensity::from_rgb(&image.to_rgb8());
-    let ibug = model.predict(&intensity, landmark_box(&largest));
-    if ibug.len() != 68 {
-        return Err(format!(
-            "the landmark model gives {} points, not the 68 of iBUG",
-            ibug.len()
-        ));
-    }
-    let points = PhotoPoints::from_ibug68(name, &ibug).map_err(|e| e.to_string())?;
-    Ok((points, note))
+    let found = splineface::detect::landmark_subject(model, image)?;
+    let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
+    Ok((points, found.note))
 }

@@ -167,3 +167,36 @@ pub fn subject_face(faces: &[Detection]) -> Result<(Detection, Option<String>), 
     );
     Ok((largest, Some(note)))
 }
+
+/// A photo's subject face, found and landmarked by [`landmark_subject`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct LandmarkedFace {
+    /// The detection used.
+    pub face: Detection,
+    /// The 68 iBUG points, image pixels (`y` down).
+    pub ibug: Vec<nalgebra::Point2<crate::Real>>,
+    /// A note when other, clearly smaller faces were ignored.
+    pub note: Option<String>,
+}
+
+/// Detects the faces in a photo and landmarks the subject's ([`subject_face`]) with a 68-point
+/// model.
+///
+/// # Errors
+/// A message when no subject face is found ([`SubjectProblem`]) or the model does not give 68
+/// points.
+pub fn landmark_subject(
+    model: &crate::landmarker::ShapePredictor,
+    image: &image::DynamicImage,
+) -> Result<LandmarkedFace, String> {
+    let (face, note) = subject_face(&detect_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
+    let intensity = crate::landmarker::Intensity::from_rgb(&image.to_rgb8());
+    let ibug = model.predict(&intensity, landmark_box(&face));
+    if ibug.len() != crate::structure::IBUG_POINT_COUNT {
+        return Err(format!(
+            "the landmark model gives {} points, not the 68 of iBUG",
+            ibug.len()
+        ));
+    }
+    Ok(LandmarkedFace { face, ibug, note })
+}
