@@ -50,6 +50,7 @@ struct Photo {
     image: image::DynamicImage,
     detected: Option<Vec<Point2<Real>>>,
     projected: Vec<Point2<Real>>,
+    ypr: [Real; 3],
 }
 
 fn read_set(dir: &Path, model: &ShapePredictor) -> Result<Vec<Photo>> {
@@ -64,8 +65,30 @@ fn read_set(dir: &Path, model: &ShapePredictor) -> Result<Vec<Photo>> {
             .iter()
             .map(|q| Point2::new(q[0].as_f64().unwrap(), q[1].as_f64().unwrap()))
             .collect();
-        let detected = splineface::detect::landmark_subject(model, &image).ok().map(|f| f.ibug);
+        let found = splineface::detect::landmark_subject(model, &image).ok();
+        if std::env::var("DUMP").is_ok() {
+            let mut rgb = image.to_rgb8();
+            let mut dot = |q: &Point2<Real>, c: [u8; 3]| {
+                for dy in -2i64..=2 { for dx in -2i64..=2 {
+                    let (x, y) = (q.x.round() as i64 + dx, q.y.round() as i64 + dy);
+                    if x >= 0 && y >= 0 && (x as u32) < rgb.width() && (y as u32) < rgb.height() { rgb.put_pixel(x as u32, y as u32, image::Rgb(c)); }
+                }}
+            };
+            for q in &projected { dot(q, [0, 255, 0]); }
+            if let Some(f) = &found {
+                for q in &f.ibug { dot(q, [255, 0, 0]); }
+                let b = f.face.bbox;
+                for x in b.left..=b.right { for y in [b.top, b.bottom] { if x >= 0 && y >= 0 && (x as u32) < rgb.width() && (y as u32) < rgb.height() { rgb.put_pixel(x as u32, y as u32, image::Rgb([0, 0, 255])); } } }
+                for y in b.top..=b.bottom { for x in [b.left, b.right] { if x >= 0 && y >= 0 && (x as u32) < rgb.width() && (y as u32) < rgb.height() { rgb.put_pixel(x as u32, y as u32, image::Rgb([0, 0, 255])); } } }
+            }
+            std::fs::create_dir_all("/tmp/dump")?;
+            rgb.save(format!("/tmp/dump/{}-{}", dir.file_name().unwrap().to_string_lossy(), file))?;
+        }
+        let detected = found.map(|f| f.ibug);
+        let a = p["yaw_pitch_roll_deg"].as_array().context("ypr")?;
+        let ypr = [a[0].as_f64().unwrap(), a[1].as_f64().unwrap(), a[2].as_f64().unwrap()];
         photos.push(Photo {
+            ypr,
             name: file.trim_end_matches(".png").to_owned(),
             image,
             detected,
@@ -108,6 +131,26 @@ fn run(
     let Ok(result) = reconstruct(&inputs, reference, options, |_| {}) else {
         return Ok(None);
     };
+    if std::env::var("DIAG").is_ok() {
+        for fit in &result.depth.photos {
+            let p = photos.iter().find(|p| p.name == fit.name).unwrap();
+            let [y, pi, r] = fit.pose.yaw_pitch_roll_degrees();
+            let [ty, tp, tr] = p.ypr;
+            let lm = match &p.detected { Some(d) => {
+                let a = splineface::structure::from_ibug68(d)?; let b = splineface::structure::from_ibug68(&p.projected)?;
+                let eye = (b[23]-b[24]).norm();
+                let e = |r: std::ops::Range<usize>| (r.clone().map(|k| (a[k]-b[k]).norm_squared()).sum::<Real>() / r.len() as Real).sqrt() / eye * 100.0;
+                format!("lm err contour {:.1}% inner {:.1}%", e(0..9), e(9..40)) }, None => "no det".into() };
+            println!("  {} ypr est {:6.1} {:6.1} {:6.1} true {:6.1} {:6.1} {:6.1} rms {:.2}u {lm}", fit.name, y, pi, r, ty, tp, tr, fit.rms_units);
+        }
+        let est = result.structure();
+        let inner: Vec<usize> = (9..40).collect();
+        let (sim, _) = splineface::compare::fit_similarity(&inner.iter().map(|&k| est[k]).collect::<Vec<_>>(), &inner.iter().map(|&k| truth.structure[k]).collect::<Vec<_>>()).unwrap();
+        let groups = [("contour", 0..9), ("brows", 9..15), ("eyes", 15..25), ("nose", 25..32), ("mouth", 32..40)];
+        let mut line = String::from("  structure err (mm, xyz / z):");
+        for (g, r) in groups { let n = r.len() as Real; let (mut e, mut ez) = (0.0, 0.0); for k in r { let d = sim * est[k] - truth.structure[k]; e += d.norm_squared(); ez += d.z * d.z; } line += &format!(" {g} {:.1}/{:.1}", (e/n).sqrt(), (ez/n).sqrt()); }
+        println!("{line}");
+    }
     Ok(Some(score(&result.output_mesh(), &result.structure(), truth)?))
 }
 
@@ -145,9 +188,13 @@ fn main() -> Result<()> {
     let per = units.per_canonical_unit();
     let canonical: Vec<Point3<Real>> = truth.structure.iter().map(|p| p / per).collect();
     for (label, deformation) in [("affine", Deformation::Affine), ("local", Deformation::default())] {
-        for inner_only in [false, true] {
+        for (inner_only, used) in [(false, (9..40).collect::<Vec<usize>>()), (true, (9..40).collect()), (true, (25..40).collect()), (true, (9..15).chain(25..40).collect()), (true, (15..40).collect())] {
             let mut target = canonical.clone();
             if inner_only {
+                let affine0 = splineface::face::structure_transform(&(0..40).map(|k| reference.structure()[if used.contains(&k) {k} else {used[k % used.len()]}]).collect::<Vec<_>>(), &(0..40).map(|k| canonical[if used.contains(&k) {k} else {used[k % used.len()]}]).collect::<Vec<_>>())?;
+                for k in 0..40 { if !used.contains(&k) { target[k] = affine0 * reference.structure()[k]; } }
+            }
+            if false {
                 // Contour points: where the affine map of the inner points puts the reference's.
                 let inner: Vec<usize> = (9..40).collect();
                 let from: Vec<Point3<Real>> = inner.iter().map(|&k| reference.structure()[k]).collect();
@@ -162,7 +209,7 @@ fn main() -> Result<()> {
             let mesh = face.mesh(&MeshOptions::default())?.mesh.transformed(&units.transform());
             let structure: Vec<Point3<Real>> = target.iter().map(|p| p * per).collect();
             let s = score(&mesh, &structure, &truth)?;
-            println!("true structure, {label}, inner only {inner_only}: mean {:.3} ({:.2}x)", s.distance.mean, s.distance.mean / m.distance.mean);
+            println!("true structure, {label}, {:?}: mean {:.3} ({:.2}x)", if inner_only {format!("{}..{} ({})", used[0], used[used.len()-1], used.len())} else {"all".into()}, s.distance.mean, s.distance.mean / m.distance.mean);
         }
     }
     for set in ["photos-8", "photos-3"] {
