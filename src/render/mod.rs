@@ -8,6 +8,7 @@
 //! coverage channel, the PNG reserves 0.
 
 mod photo;
+mod photoreal;
 mod raster;
 mod write;
 
@@ -17,6 +18,7 @@ use crate::Real;
 pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
+pub use photoreal::{Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, render_photo};
 pub use raster::render_heights;
 pub use write::{
     DepthFileError, draw_text, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis,
