@@ -197,7 +197,13 @@ impl ColourMap {
             height: image.height() as usize,
             texels: image
                 .pixels()
-                .map(|p| [lookup[p[0] as usize], lookup[p[1] as usize], lookup[p[2] as usize]])
+                .map(|p| {
+                    [
+                        lookup[p[0] as usize],
+                        lookup[p[1] as usize],
+                        lookup[p[2] as usize],
+                    ]
+                })
                 .collect(),
         }
     }
@@ -353,10 +359,19 @@ pub fn render_photo(
     look: &PhotoLook,
 ) -> Result<RgbImage, PhotoRenderError> {
     let texture = mesh.texture().ok_or(PhotoRenderError::NoTextureCoordinates)?;
-    let setting = |ok: bool, message: String| if ok { Ok(()) } else { Err(PhotoRenderError::Setting(message)) };
+    let setting = |ok: bool, message: String| {
+        if ok {
+            Ok(())
+        } else {
+            Err(PhotoRenderError::Setting(message))
+        }
+    };
     setting(
         (16..=8192).contains(&camera.width) && (16..=8192).contains(&camera.height),
-        format!("{}×{} pixels: each side must be 16 to 8192", camera.width, camera.height),
+        format!(
+            "{}×{} pixels: each side must be 16 to 8192",
+            camera.width, camera.height
+        ),
     )?;
     setting(
         camera.focal > 0.0 && camera.focal.is_finite(),
@@ -385,7 +400,10 @@ pub fn render_photo(
         .iter()
         .map(|q| {
             let z = q.z.max(near);
-            [big.centre.x + big.focal * q.x / z, big.centre.y + big.focal * q.y / z]
+            [
+                big.centre.x + big.focal * q.x / z,
+                big.centre.y + big.focal * q.y / z,
+            ]
         })
         .collect();
     let keys: Vec<Real> = in_camera
@@ -432,12 +450,15 @@ pub fn render_photo(
             let sum = wa * ka + wb * kb + wc * kc;
             let w = [wa * ka / sum, wb * kb / sum, wc * kc / sum];
             let corners = t.map(|v| mesh.positions()[v as usize]);
-            let p = Point3::from(w[0] * corners[0].coords + w[1] * corners[1].coords + w[2] * corners[2].coords);
+            let p =
+                Point3::from(w[0] * corners[0].coords + w[1] * corners[1].coords + w[2] * corners[2].coords);
             let uv_index = texture.triangles[k];
             let uvs = uv_index.map(|v| texture.uvs[v as usize]);
             let uv = w[0] * uvs[0].coords + w[1] * uvs[1].coords + w[2] * uvs[2].coords;
             let albedo = colour_map.sample(uv.x, uv.y);
-            let mut n = (w[0] * normals[t[0] as usize] + w[1] * normals[t[1] as usize] + w[2] * normals[t[2] as usize])
+            let mut n = (w[0] * normals[t[0] as usize]
+                + w[1] * normals[t[1] as usize]
+                + w[2] * normals[t[2] as usize])
                 .try_normalize(0.0)
                 .unwrap_or_else(Vector3::z);
             let to_eye = (eye - p).try_normalize(0.0).unwrap_or_else(Vector3::z);

@@ -25,7 +25,13 @@ struct Prepared {
     index: u32,
 }
 
-fn prepare(corners: [[Real; 2]; 3], keys: [Real; 3], width: usize, height: usize, index: u32) -> Option<Prepared> {
+fn prepare(
+    corners: [[Real; 2]; 3],
+    keys: [Real; 3],
+    width: usize,
+    height: usize,
+    index: u32,
+) -> Option<Prepared> {
     let [a, b, c] = corners;
     let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
     if area == 0.0 || !area.is_finite() {

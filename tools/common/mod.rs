@@ -147,6 +147,19 @@ impl Ict {
         self.unified(&offsets)
     }
 
+    /// `neutral + Σₖ wₖ·identityₖ` in the data's own frame and centimetres.
+    pub fn positions(&self, weights: &[Real]) -> Vec<Point3<Real>> {
+        let n = self.neutral.positions().len();
+        let mut positions = self.neutral.positions().to_vec();
+        for (k, &w) in weights.iter().enumerate().take(self.modes) {
+            let mode = &self.identities[k * n * 3..(k + 1) * n * 3];
+            for (p, m) in positions.iter_mut().zip(mode.chunks_exact(3)) {
+                *p += w * nalgebra::Vector3::new(Real::from(m[0]), Real::from(m[1]), Real::from(m[2]));
+            }
+        }
+        positions
+    }
+
     fn unified(&self, offsets: &[Real]) -> Result<Subject> {
         let positions: Vec<Point3<Real>> = self
             .neutral
