@@ -357,6 +357,40 @@ impl ShapePredictor {
         self.initial.len()
     }
 
+    /// The box in which the model's mean shape fits `points` best (least squares over a shift
+    /// and one scale: dlib's boxes are square): the box a face with these landmarks is
+    /// predicted from most naturally. Fed back to [`ShapePredictor::predict`], it re-centres a
+    /// prediction made from a box that framed the face poorly.
+    pub fn box_for(&self, points: &[Point2<Real>]) -> Option<FaceBox> {
+        if points.len() != self.initial.len() || points.is_empty() {
+            return None;
+        }
+        let n = points.len() as Real;
+        let mean_of = |xs: &mut dyn Iterator<Item = (Real, Real)>| {
+            let (sx, sy) = xs.fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+            (sx / n, sy / n)
+        };
+        let (mx, my) = mean_of(&mut self.initial.iter().map(|p| (Real::from(p[0]), Real::from(p[1]))));
+        let (px, py) = mean_of(&mut points.iter().map(|p| (p.x, p.y)));
+        let (mut cross, mut var) = (0.0, 0.0);
+        for (m, p) in self.initial.iter().zip(points) {
+            let (dx, dy) = (Real::from(m[0]) - mx, Real::from(m[1]) - my);
+            cross += dx * (p.x - px) + dy * (p.y - py);
+            var += dx * dx + dy * dy;
+        }
+        let side = cross / var;
+        if !(side > 1.0 && side.is_finite()) {
+            return None;
+        }
+        let (left, top) = (px - side * mx, py - side * my);
+        Some(FaceBox {
+            left: left.round() as i64,
+            top: top.round() as i64,
+            right: (left + side).round() as i64,
+            bottom: (top + side).round() as i64,
+        })
+    }
+
     /// The landmarks of the face in `face`, in image pixels.
     pub fn predict(&self, image: &Intensity, face: FaceBox) -> Vec<Point2<Real>> {
         let n = self.initial.len();

@@ -23,7 +23,7 @@ use serde_json::json;
 use crate::Real;
 use crate::align::{
     AlignError, Dropped, FrontalStructure, GreyImage, PhotoPoints, RaslOptions, RaslPhoto, RaslResult,
-    procrustes_frontal, rasl_frontal,
+    disagreeing_photos, landmark_agreement, procrustes_frontal, rasl_frontal,
 };
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
 use crate::export::{PngTexture, StepOptions, encode_glb, encode_png, encode_step};
@@ -81,6 +81,12 @@ pub struct PipelineOptions {
     pub depth_map_size: usize,
     /// The fewest usable photos a reconstruction accepts ([`MIN_PHOTOS`] by default).
     pub min_photos: usize,
+    /// How far the surface follows the estimated structure beyond the similarity that best
+    /// maps the reference's onto it: 1 follows it fully, 0 keeps the reference's shape.
+    pub structure_weight: Real,
+    /// Leave out photos whose landmarks mark other places than the other photos' do
+    /// ([`crate::align::landmark_agreement`]; needs images and three photos or more).
+    pub drop_disagreeing: bool,
 }
 
 /// The default [`PipelineOptions::min_photos`]: two.
@@ -101,6 +107,8 @@ impl Default for PipelineOptions {
             rasl: RaslOptions::default(),
             depth_map_size: 512,
             min_photos: MIN_PHOTOS,
+            drop_disagreeing: true,
+            structure_weight: 1.0,
         }
     }
 }
@@ -195,6 +203,43 @@ pub fn reconstruct(
     let mut timings = Vec::new();
     let with_images = inputs.iter().all(|i| i.image.is_some());
     let start = Instant::now();
+    // Photos whose landmarks mark other places of the face than the others' do.
+    let mut dropped: Vec<Dropped> = Vec::new();
+    let agreement: Vec<Real> = if with_images {
+        let pairs: Vec<(&GreyImage, &PhotoPoints)> = inputs
+            .iter()
+            .map(|i| (&i.image.as_ref().expect("checked above").grey, &i.points))
+            .collect();
+        landmark_agreement(&pairs)
+    } else {
+        vec![Real::NAN; inputs.len()]
+    };
+    let disagreeing = if options.drop_disagreeing {
+        disagreeing_photos(&agreement)
+    } else {
+        Vec::new()
+    };
+    for &(k, others) in &disagreeing {
+        dropped.push(Dropped {
+            name: inputs[k].points.name.clone(),
+            reason: format!(
+                "its landmarks do not mark the places the other photos' do (patch agreement {:.2}, the others' median {others:.2}): \
+                 the landmarker probably failed on it",
+                agreement[k]
+            ),
+        });
+    }
+    let agreeing: Vec<usize> = (0..inputs.len())
+        .filter(|k| !disagreeing.iter().any(|(d, _)| d == k))
+        .collect();
+    if agreeing.len() < needed {
+        return Err(PipelineError::TooFewPhotos {
+            usable: agreeing.len(),
+            needed,
+            dropped,
+        });
+    }
+    let inputs: Vec<&Input> = agreeing.iter().map(|&k| &inputs[k]).collect();
     let (frontal, rasl, kept): (FrontalStructure, Option<RaslResult>, Vec<usize>) = if with_images {
         progress(&format!(
             "aligning {} photos and their mirror images (RASL)",
@@ -221,7 +266,7 @@ pub fn reconstruct(
         (procrustes_frontal(&points)?, None, (0..inputs.len()).collect())
     };
     timings.push(("frontal structure".to_owned(), start.elapsed().as_secs_f64()));
-    let dropped = rasl.as_ref().map(|r| r.dropped.clone()).unwrap_or_default();
+    dropped.extend(rasl.as_ref().map(|r| r.dropped.clone()).unwrap_or_default());
     if kept.len() < needed {
         return Err(PipelineError::TooFewPhotos {
             usable: kept.len(),
@@ -239,7 +284,8 @@ pub fn reconstruct(
 
     progress("deforming the reference surface and meshing the face");
     let start = Instant::now();
-    let face = FaceSurface::deform(reference, &depth.structure, options.deformation)?;
+    let target = crate::face::shrunk_toward_reference(reference, &depth.structure, options.structure_weight)?;
+    let face = FaceSurface::deform(reference, &target, options.deformation)?;
     let mesh = face.mesh(&options.mesh)?;
     let textured = if with_images {
         depth.most_frontal_photo().map(|k| {

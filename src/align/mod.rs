@@ -13,10 +13,14 @@
 //! Both take [`PhotoPoints`]: a photo's 40 structure points in image pixels (`v` down), named
 //! so that errors can say which photo is wrong.
 
+mod agreement;
 mod image;
 mod procrustes;
 mod rasl;
 
+pub use agreement::{
+    AGREEMENT_FLOOR, AGREEMENT_RATIO, PATCH_SIDE, PATCH_STEP, disagreeing_photos, landmark_agreement,
+};
 pub use image::{
     GreyImage, MAX_PIXELS, MIN_SIDE, PhotoError, PhotoProblem, decode_photo, decode_photo_bytes,
 };

@@ -47,7 +47,7 @@ use crate::Real;
 use crate::align::{AlignError, FrontalStructure, PhotoPoints};
 use crate::reference::ReferenceFace;
 use crate::structure::{
-    LEFT_EYE_CENTRE, POINT_COUNT, RIGHT_EYE_CENTRE, edge_lengths, multi_substructure_similarity,
+    Group, LEFT_EYE_CENTRE, POINT_COUNT, POINTS, RIGHT_EYE_CENTRE, edge_lengths, multi_substructure_similarity,
     multi_substructure_similarity_gradient, substructures,
 };
 use pose::{closed_form_pose, refine_pose, reprojection_cost};
@@ -61,6 +61,13 @@ pub const BAD_FIT_UNITS: Real = 2.5;
 
 /// See [`BAD_FIT_UNITS`].
 pub const BAD_FIT_RATIO: Real = 3.0;
+
+/// A photo is left out ([`DepthOptions::drop_outliers`]) when its RMS error over the 31
+/// points off the contour exceeds this many times the median of the other photos'...
+pub const OUTLIER_RATIO: Real = 2.5;
+
+/// ...and this, in canonical units (2% of the eye distance).
+pub const OUTLIER_FLOOR_UNITS: Real = 1.0;
 
 /// Poses closer than this (degrees) count as one pose when deciding whether the photos see the
 /// face from enough directions.
@@ -132,6 +139,13 @@ pub struct DepthOptions {
     pub max_iterations: usize,
     /// What the depth step may change of the frontal structure's `x, y`.
     pub frontal: FrontalFreedom,
+    /// The weight of the 9 contour (jaw) points against 1 for the others. A landmarker puts
+    /// the jaw points of a turned face on its visible outline, which is not one fixed point of
+    /// the face, so they fit no 3D structure well (see [`DepthOptions::default`]).
+    pub contour_weight: Real,
+    /// Leave out of the fit, and report, photos whose points do not agree with the others
+    /// ([`OUTLIER_RATIO`], [`OUTLIER_FLOOR_UNITS`]); needs three photos or more.
+    pub drop_outliers: bool,
 }
 
 /// What the depth step may change of the frontal structure's `x, y`.
@@ -162,6 +176,8 @@ impl Default for DepthOptions {
             tolerance: 0.01,
             max_iterations: 100,
             frontal: FrontalFreedom::Free,
+            contour_weight: 1.0,
+            drop_outliers: false,
         }
     }
 }
@@ -179,6 +195,13 @@ pub struct PhotoFit {
     pub eye_midpoint: Point2<Real>,
     /// The same in canonical units (50 between the eye centres).
     pub rms_units: Real,
+    /// The RMS over the 31 points off the contour, canonical units.
+    pub inner_rms_units: Real,
+    /// The same for the photo's pose fitted to the structure of the other photos (when
+    /// outliers are looked for, [`DepthOptions::drop_outliers`]; else `NaN`).
+    pub held_out_rms_units: Real,
+    /// Whether the photo took part in the structure's fit (see [`DepthWarning::Dropped`]).
+    pub used: bool,
 }
 
 /// Something the caller should know about an estimate.
@@ -191,6 +214,17 @@ pub enum DepthWarning {
         photo: String,
         /// Its RMS error, canonical units.
         rms_units: Real,
+    },
+    /// A photo's points (off the contour) fit the structure of the others much worse than
+    /// theirs do ([`OUTLIER_RATIO`]): wrong landmarks, another face, a strong expression. It
+    /// was left out of the fit.
+    Dropped {
+        /// The photo.
+        photo: String,
+        /// Its RMS error over the 31 points off the contour, canonical units.
+        rms_units: Real,
+        /// The median of the others'.
+        median_units: Real,
     },
     /// Fewer than two distinct poses: depth is seen from too few directions and rests largely on
     /// the reference structure.
@@ -248,6 +282,16 @@ impl std::fmt::Display for DepthWarning {
                 f,
                 "photo {photo} fits the structure badly (RMS {rms_units:.2} units, {:.1}% of the eye distance)",
                 2.0 * rms_units
+            ),
+            Self::Dropped {
+                photo,
+                rms_units,
+                median_units,
+            } => write!(
+                f,
+                "photo {photo} was left out: its points disagree with the other photos' (RMS {rms_units:.2} units \
+                 off the contour, {:.1}× the others' median)",
+                rms_units / median_units.max(Real::MIN_POSITIVE)
             ),
             Self::FewPoses { distinct } => write!(
                 f,
@@ -334,9 +378,14 @@ struct View {
     kappa: Real,
     /// The eye midpoint, pixels, `y` down.
     middle: Point2<Real>,
+    /// Each point's weight in the fit ([`DepthOptions::contour_weight`]).
+    weights: Vec<Real>,
+    /// Whether the photo takes part in the structure's fit (dropped photos do not, but their
+    /// poses are still fitted and reported).
+    active: bool,
 }
 
-fn prepare_view(photo: &PhotoPoints, frontal_radius: Real) -> Result<View, DepthError> {
+fn prepare_view(photo: &PhotoPoints, frontal_radius: Real, weights: &[Real]) -> Result<View, DepthError> {
     let up = photo.y_up();
     let middle = nalgebra::center(&up[RIGHT_EYE_CENTRE], &up[LEFT_EYE_CENTRE]);
     let centred: Vec<Vector2<Real>> = up.iter().map(|p| p - middle).collect();
@@ -352,6 +401,8 @@ fn prepare_view(photo: &PhotoPoints, frontal_radius: Real) -> Result<View, Depth
         points: centred.iter().map(|v| Point2::from(v * kappa)).collect(),
         kappa,
         middle: Point2::new(middle.x, -middle.y),
+        weights: weights.to_vec(),
+        active: true,
     })
 }
 
@@ -462,7 +513,11 @@ impl DepthObjective<'_> {
         gradient.iter_mut().for_each(|g| *g = 0.0);
         let mut error = 0.0;
         let (mut d_shear, mut d_stretch) = (0.0, 0.0);
+        let mut count = 0.0;
         for (i, (view, pose)) in self.views.iter().zip(self.poses(base, w)).enumerate() {
+            if !view.active {
+                continue;
+            }
             let m = pose.rotation.matrix();
             let s = pose.scale;
             let c0 = Vector2::new(s * m[(0, 0)], s * m[(1, 0)]);
@@ -473,8 +528,11 @@ impl DepthObjective<'_> {
             // ∂R/∂ωₖ = (ωₖ [ω]× + [ω × (I − R) eₖ]×) R / |ω|² (Gallego & Yezzi 2015), [eₖ]× at 0.
             let mut outer = Matrix3::zeros();
             for (j, ((x, p), f)) in view.points.iter().zip(&points).zip(self.frontal).enumerate() {
-                let r = x.coords - c0 * p.x - c1 * p.y - c2 * p.z;
-                error += r.norm_squared();
+                let weight = view.weights[j];
+                count += weight;
+                let residual = x.coords - c0 * p.x - c1 * p.y - c2 * p.z;
+                let r = weight * residual;
+                error += r.dot(&residual);
                 let (rc0, rc1) = (r.dot(&c0), r.dot(&c1));
                 gradient[j] -= 2.0 * r.dot(&c2);
                 gradient[DX + j] -= 2.0 * rc0;
@@ -508,7 +566,7 @@ impl DepthObjective<'_> {
                 *g = d / POSE_SCALE;
             }
         }
-        let count = (POINT_COUNT * self.views.len()) as Real;
+        let count = count.max(Real::MIN_POSITIVE);
         error /= count;
         gradient.iter_mut().for_each(|g| *g /= count);
         gradient[SHEAR] = d_shear / count / self.y_scale;
@@ -666,11 +724,22 @@ pub fn estimate_depth(
         photo.validate()?;
     }
 
+    if !(options.contour_weight >= 0.0 && options.contour_weight <= 1.0) {
+        return Err(DepthError::Option {
+            name: "contour_weight",
+            value: options.contour_weight.to_string(),
+            expected: "between 0 and 1",
+        });
+    }
+    let point_weights: Vec<Real> = POINTS
+        .iter()
+        .map(|p| if p.group == Group::Contour { options.contour_weight } else { 1.0 })
+        .collect();
     let frontal_points = &frontal.points;
     let frontal_radius = rms_radius(frontal_points.iter().map(|p| &p.coords));
     let views = photos
         .iter()
-        .map(|photo| prepare_view(photo, frontal_radius))
+        .map(|photo| prepare_view(photo, frontal_radius, &point_weights))
         .collect::<Result<Vec<_>, _>>()?;
     let groups = substructures(&prior.edges);
     let reference_lengths = edge_lengths(&prior.points, &prior.edges);
@@ -683,79 +752,36 @@ pub fn estimate_depth(
     }
     w[RIGHT_EYE_CENTRE] = 0.0;
     w[LEFT_EYE_CENTRE] = 0.0;
-    let depth = DepthObjective {
+    let problem = Problem {
+        photos,
         frontal: frontal_points,
         prior,
         groups: &groups,
         reference_lengths: &reference_lengths,
-        views: &views,
         options,
         y_scale,
     };
+    let fit = problem.solve(&views, &mut w, None)?;
 
-    let pose_step =
-        |structure: &[Point3<Real>], previous: Option<&[Pose]>| -> Result<Vec<Pose>, DepthError> {
-            views
-                .iter()
-                .enumerate()
-                .map(|(i, view)| {
-                    let start = match previous {
-                        Some(poses) => Some(poses[i]),
-                        None => closed_form_pose(&view.points, structure),
-                    };
-                    let start = start.ok_or_else(|| DepthError::NoPose {
-                        photo: photos[i].name.clone(),
-                    })?;
-                    Ok(refine_pose(start, &view.points, structure))
-                })
-                .collect()
-        };
-    let objective_of = |structure: &[Point3<Real>], poses: &[Pose]| -> Real {
-        let sum: Real = views
-            .iter()
-            .zip(poses)
-            .map(|(view, pose)| reprojection_cost(pose, &view.points, structure))
-            .sum();
-        let rms = (sum / (POINT_COUNT * views.len()) as Real).sqrt();
-        if options.similarity_constraint {
-            let lengths = edge_lengths(structure, &prior.edges);
-            rms / multi_substructure_similarity(&reference_lengths, &lengths, &groups)
-        } else {
-            rms
-        }
-    };
-
-    let mut structure = depth.structure(&w);
-    let mut poses = pose_step(&structure, None)?;
-    let mut objective = vec![objective_of(&structure, &poses)];
-    let mut converged = false;
-    let mut iterations = 0;
-    while iterations < options.max_iterations {
-        iterations += 1;
-        depth.minimise(&mut poses, &mut w);
-        if options.frontal == FrontalFreedom::Free {
-            let turn = depth.fix_pitch(&mut w);
-            for pose in &mut poses {
-                pose.rotation *= turn.inverse();
-            }
-        }
-        structure = depth.structure(&w);
-        poses = pose_step(&structure, Some(&poses))?;
-        let value = objective_of(&structure, &poses);
-        let change = (value - objective[objective.len() - 1]).abs();
-        objective.push(value);
-        if change < options.tolerance {
-            converged = true;
-            break;
-        }
-    }
-
+    let dropped: Vec<DepthWarning> = Vec::new();
+    let held_out = vec![Real::NAN; views.len()];
+    let Fit {
+        structure,
+        poses,
+        objective,
+        iterations,
+        converged,
+        gauge,
+    } = fit;
     let photo_fits: Vec<PhotoFit> = photos
         .iter()
         .zip(&views)
         .zip(&poses)
-        .map(|((photo, view), pose)| {
-            let rms_units = (reprojection_cost(pose, &view.points, &structure) / POINT_COUNT as Real).sqrt();
+        .enumerate()
+        .map(|(k, ((photo, view), pose))| {
+            let rms_units = (reprojection_cost(pose, &view.points, &structure, &view.weights)
+                / view.weights.iter().sum::<Real>())
+            .sqrt();
             PhotoFit {
                 name: photo.name.clone(),
                 pose: Pose {
@@ -765,6 +791,9 @@ pub fn estimate_depth(
                 rms_pixels: rms_units / view.kappa,
                 eye_midpoint: view.middle,
                 rms_units,
+                inner_rms_units: inner_rms(view, pose, &structure),
+                held_out_rms_units: held_out[k],
+                used: view.active,
             }
         })
         .collect();
@@ -773,17 +802,129 @@ pub fn estimate_depth(
         &edge_lengths(&structure, &prior.edges),
         &groups,
     );
-    let warnings = warnings_for(&photo_fits, iterations, converged);
+    let mut warnings = dropped;
+    warnings.extend(warnings_for(&photo_fits, iterations, converged));
     Ok(DepthEstimate {
         structure,
         photos: photo_fits,
         objective,
         similarity,
-        gauge: depth.gauge(&w),
+        gauge,
         iterations,
         converged,
         warnings,
     })
+}
+
+/// A photo's RMS reprojection error over the 31 points off the contour, canonical units: the
+/// points whose fit says whether the photo's landmarks are right.
+fn inner_rms(view: &View, pose: &Pose, structure: &[Point3<Real>]) -> Real {
+    let inner: Vec<Real> = POINTS
+        .iter()
+        .map(|p| if p.group == Group::Contour { 0.0 } else { 1.0 })
+        .collect();
+    (reprojection_cost(pose, &view.points, structure, &inner) / inner.iter().sum::<Real>()).sqrt()
+}
+
+/// What [`Problem::solve`] gives.
+struct Fit {
+    structure: Vec<Point3<Real>>,
+    poses: Vec<Pose>,
+    objective: Vec<Real>,
+    iterations: usize,
+    converged: bool,
+    gauge: FrontalGauge,
+}
+
+/// Everything the alternation needs but the photos' views and the unknowns.
+struct Problem<'a> {
+    photos: &'a [PhotoPoints],
+    frontal: &'a [Point2<Real>],
+    prior: &'a StructurePrior,
+    groups: &'a [Vec<usize>; 7],
+    reference_lengths: &'a [Real],
+    options: &'a DepthOptions,
+    y_scale: Real,
+}
+
+impl Problem<'_> {
+    /// The paper's alternation (see the module documentation) over the active views, from the
+    /// unknowns `w` (updated) and, when given, the poses of a previous solve.
+    fn solve(&self, views: &[View], w: &mut Vec<Real>, previous: Option<Vec<Pose>>) -> Result<Fit, DepthError> {
+        let options = self.options;
+        let depth = DepthObjective {
+            frontal: self.frontal,
+            prior: self.prior,
+            groups: self.groups,
+            reference_lengths: self.reference_lengths,
+            views,
+            options,
+            y_scale: self.y_scale,
+        };
+        let pose_step = |structure: &[Point3<Real>], previous: Option<&[Pose]>| -> Result<Vec<Pose>, DepthError> {
+            views
+                .iter()
+                .enumerate()
+                .map(|(i, view)| {
+                    let start = match previous {
+                        Some(poses) => Some(poses[i]),
+                        None => closed_form_pose(&view.points, structure, &view.weights),
+                    };
+                    let start = start.ok_or_else(|| DepthError::NoPose {
+                        photo: self.photos[i].name.clone(),
+                    })?;
+                    Ok(refine_pose(start, &view.points, structure, &view.weights))
+                })
+                .collect()
+        };
+        let objective_of = |structure: &[Point3<Real>], poses: &[Pose]| -> Real {
+            let (mut sum, mut count) = (0.0, 0.0);
+            for (view, pose) in views.iter().zip(poses).filter(|(v, _)| v.active) {
+                sum += reprojection_cost(pose, &view.points, structure, &view.weights);
+                count += view.weights.iter().sum::<Real>();
+            }
+            let rms = (sum / count.max(Real::MIN_POSITIVE)).sqrt();
+            if options.similarity_constraint {
+                let lengths = edge_lengths(structure, &self.prior.edges);
+                rms / multi_substructure_similarity(self.reference_lengths, &lengths, self.groups)
+            } else {
+                rms
+            }
+        };
+
+        let mut structure = depth.structure(w);
+        let mut poses = pose_step(&structure, previous.as_deref())?;
+        let mut objective = vec![objective_of(&structure, &poses)];
+        let mut converged = false;
+        let mut iterations = 0;
+        while iterations < options.max_iterations {
+            iterations += 1;
+            depth.minimise(&mut poses, w);
+            if options.frontal == FrontalFreedom::Free {
+                let turn = depth.fix_pitch(w);
+                for pose in &mut poses {
+                    pose.rotation *= turn.inverse();
+                }
+            }
+            structure = depth.structure(w);
+            poses = pose_step(&structure, Some(&poses))?;
+            let value = objective_of(&structure, &poses);
+            let change = (value - objective[objective.len() - 1]).abs();
+            objective.push(value);
+            if change < options.tolerance {
+                converged = true;
+                break;
+            }
+        }
+        Ok(Fit {
+            structure,
+            poses,
+            objective,
+            iterations,
+            converged,
+            gauge: depth.gauge(w),
+        })
+    }
 }
 
 fn warnings_for(photos: &[PhotoFit], iterations: usize, converged: bool) -> Vec<DepthWarning> {

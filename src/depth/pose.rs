@@ -64,12 +64,12 @@ impl Pose {
 /// nearest scaled map with orthonormal rows (`M = U Σ Vᵀ` gives `s R₁₂ = mean(σ) · U Vᵀ`); the
 /// third row of `R` is the cross product of the first two. `None` when the structure is
 /// degenerate (all points on a line).
-pub(crate) fn closed_form_pose(view: &[Point2<Real>], structure: &[Point3<Real>]) -> Option<Pose> {
-    let mut cross = Matrix2x3::zeros(); // Σ xⱼ Xⱼᵀ
-    let mut gram = Matrix3::zeros(); // Σ Xⱼ Xⱼᵀ
-    for (x, p) in view.iter().zip(structure) {
-        cross += x.coords * p.coords.transpose();
-        gram += p.coords * p.coords.transpose();
+pub(crate) fn closed_form_pose(view: &[Point2<Real>], structure: &[Point3<Real>], weights: &[Real]) -> Option<Pose> {
+    let mut cross = Matrix2x3::zeros(); // Σ wⱼ xⱼ Xⱼᵀ
+    let mut gram = Matrix3::zeros(); // Σ wⱼ Xⱼ Xⱼᵀ
+    for ((x, p), w) in view.iter().zip(structure).zip(weights) {
+        cross += *w * x.coords * p.coords.transpose();
+        gram += *w * p.coords * p.coords.transpose();
     }
     // A planar structure (every depth equal) leaves the third column free: the pseudo-inverse
     // gives the map with no depth term, a rotation in the picture plane.
@@ -95,25 +95,31 @@ pub(crate) fn closed_form_pose(view: &[Point2<Real>], structure: &[Point3<Real>]
     })
 }
 
-/// The sum of squared reprojection errors of a pose.
-pub(crate) fn reprojection_cost(pose: &Pose, view: &[Point2<Real>], structure: &[Point3<Real>]) -> Real {
+/// The weighted sum of squared reprojection errors of a pose.
+pub(crate) fn reprojection_cost(
+    pose: &Pose,
+    view: &[Point2<Real>],
+    structure: &[Point3<Real>],
+    weights: &[Real],
+) -> Real {
     view.iter()
         .zip(structure)
-        .map(|(x, p)| (x - pose.project(p)).norm_squared())
+        .zip(weights)
+        .map(|((x, p), w)| w * (x - pose.project(p)).norm_squared())
         .sum()
 }
 
 /// Levenberg–Marquardt refinement of a pose over its 4 parameters (a rotation vector applied
 /// on the left, and the scale), from `start`. Never returns a pose worse than `start`.
-pub(crate) fn refine_pose(start: Pose, view: &[Point2<Real>], structure: &[Point3<Real>]) -> Pose {
+pub(crate) fn refine_pose(start: Pose, view: &[Point2<Real>], structure: &[Point3<Real>], weights: &[Real]) -> Pose {
     let mut pose = start;
-    let mut cost = reprojection_cost(&pose, view, structure);
+    let mut cost = reprojection_cost(&pose, view, structure, weights);
     let mut damping = 1e-6;
     for _ in 0..50 {
         // Model mⱼ = s P exp([ω]×) R Xⱼ; at ω = 0: ∂m/∂ω = −s P [qⱼ]×, ∂m/∂s = P qⱼ, qⱼ = R Xⱼ.
         let mut normal = Matrix4::zeros();
         let mut rhs = Vector4::zeros();
-        for (x, p) in view.iter().zip(structure) {
+        for ((x, p), &w) in view.iter().zip(structure).zip(weights) {
             let q = pose.rotation * p.coords;
             let s = pose.scale;
             // Rows of −s P [q]×: [q]× = [[0, −q_z, q_y], [q_z, 0, −q_x], [−q_y, q_x, 0]].
@@ -121,8 +127,8 @@ pub(crate) fn refine_pose(start: Pose, view: &[Point2<Real>], structure: &[Point
             let j1 = Vector4::new(-s * q.z, 0.0, s * q.x, q.y);
             let r0 = x.x - s * q.x;
             let r1 = x.y - s * q.y;
-            normal += j0 * j0.transpose() + j1 * j1.transpose();
-            rhs += j0 * r0 + j1 * r1;
+            normal += w * (j0 * j0.transpose() + j1 * j1.transpose());
+            rhs += w * (j0 * r0 + j1 * r1);
         }
         let mut improved = false;
         while damping < 1e12 {
@@ -138,7 +144,7 @@ pub(crate) fn refine_pose(start: Pose, view: &[Point2<Real>], structure: &[Point
                 rotation: Rotation3::new(Vector3::new(step[0], step[1], step[2])) * pose.rotation,
                 scale: pose.scale + step[3],
             };
-            let candidate_cost = reprojection_cost(&candidate, view, structure);
+            let candidate_cost = reprojection_cost(&candidate, view, structure, weights);
             if candidate.scale > 0.0 && candidate_cost <= cost {
                 let decrease = cost - candidate_cost;
                 pose = candidate;

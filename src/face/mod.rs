@@ -188,6 +188,48 @@ pub fn structure_transform(from: &[Point3<Real>], to: &[Point3<Real>]) -> Result
     Ok(Affine3::from_matrix_unchecked(matrix))
 }
 
+/// `structure` pulled toward the reference's: `S + α (T − S)`, where `T` is `structure` and `S`
+/// the reference structure moved onto it by the least-squares similarity over the 31 points
+/// off the contour. `α = 1` gives `structure` back; `α = 0` the reference's shape, placed as
+/// the estimate is.
+///
+/// # Errors
+/// [`FaceError::PointCount`], [`FaceError::NonFinite`] for a bad structure,
+/// [`FaceError::Option`] for `α` outside `[0, 1]`, [`FaceError::FlatReference`] when no
+/// similarity is determined.
+pub fn shrunk_toward_reference(
+    reference: &ReferenceFace,
+    structure: &[Point3<Real>],
+    alpha: Real,
+) -> Result<Vec<Point3<Real>>, FaceError> {
+    check_structure(structure)?;
+    if !(0.0..=1.0).contains(&alpha) {
+        return Err(FaceError::Option {
+            name: "structure weight",
+            value: alpha.to_string(),
+            expected: "between 0 and 1",
+        });
+    }
+    if alpha == 1.0 {
+        return Ok(structure.to_vec());
+    }
+    let inner: Vec<usize> = (0..POINT_COUNT)
+        .filter(|&k| crate::structure::POINTS[k].group != crate::structure::Group::Contour)
+        .collect();
+    let pick = |ps: &[Point3<Real>]| inner.iter().map(|&k| ps[k]).collect::<Vec<_>>();
+    let (map, _) = crate::compare::fit_similarity(&pick(reference.structure()), &pick(structure))
+        .ok_or(FaceError::FlatReference)?;
+    Ok(reference
+        .structure()
+        .iter()
+        .zip(structure)
+        .map(|(r, t)| {
+            let s = map * r;
+            s + alpha * (t - s)
+        })
+        .collect())
+}
+
 impl FaceSurface {
     /// Deforms the reference's control grid to the estimated structure (canonical frame).
     ///

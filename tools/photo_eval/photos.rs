@@ -75,10 +75,11 @@ fn draw_shot(rng: &mut Lcg, max_yaw: Real, seed: u64) -> Shot {
     ];
     // 0.4 to 2 m, spread evenly in its logarithm.
     let distance = (400.0 as Real).ln() + rng.next() * ((2000.0 as Real).ln() - (400.0 as Real).ln());
+    // From the front hemisphere, seldom from below (as photos are lit).
     let direction = loop {
         let d = Vector3::new(
             rng.uniform(-1.0, 1.0),
-            rng.uniform(-0.6, 1.0),
+            rng.uniform(-0.25, 1.0),
             rng.uniform(0.25, 1.0),
         );
         if d.norm() <= 1.0 {
@@ -114,7 +115,7 @@ fn draw_shot(rng: &mut Lcg, max_yaw: Real, seed: u64) -> Shot {
 
 /// The version of the rendered pools: a cached pool made by another version is rendered
 /// again.
-const POOL_VERSION: u64 = 1;
+const POOL_VERSION: u64 = 2;
 
 /// `count` photos of `subject` under random poses (yaw within ±`max_yaw`), distances
 /// (0.4–2 m), focal lengths (the face 22–45% of the width) and lights, rendered into `dir`
