@@ -74,7 +74,9 @@ fn median(mut values: Vec<Real>) -> Real {
 /// axis); the photo's agreement is the median over its points. 1 is perfect; unrelated patches
 /// give about 0. `NaN` for a photo with no other to compare with.
 pub fn landmark_agreement(photos: &[(&GreyImage, &PhotoPoints)]) -> Vec<Real> {
-    let inner: Vec<usize> = (0..POINT_COUNT).filter(|&k| POINTS[k].group != Group::Contour).collect();
+    let inner: Vec<usize> = (0..POINT_COUNT)
+        .filter(|&k| POINTS[k].group != Group::Contour)
+        .collect();
     let patches: Vec<Vec<Option<Vec<Real>>>> = photos
         .iter()
         .map(|(image, points)| {

@@ -47,8 +47,8 @@ use crate::Real;
 use crate::align::{AlignError, FrontalStructure, PhotoPoints};
 use crate::reference::ReferenceFace;
 use crate::structure::{
-    Group, LEFT_EYE_CENTRE, POINT_COUNT, POINTS, RIGHT_EYE_CENTRE, edge_lengths, multi_substructure_similarity,
-    multi_substructure_similarity_gradient, substructures,
+    Group, LEFT_EYE_CENTRE, POINT_COUNT, POINTS, RIGHT_EYE_CENTRE, edge_lengths,
+    multi_substructure_similarity, multi_substructure_similarity_gradient, substructures,
 };
 use pose::{closed_form_pose, refine_pose, reprojection_cost};
 
@@ -61,13 +61,6 @@ pub const BAD_FIT_UNITS: Real = 2.5;
 
 /// See [`BAD_FIT_UNITS`].
 pub const BAD_FIT_RATIO: Real = 3.0;
-
-/// A photo is left out ([`DepthOptions::drop_outliers`]) when its RMS error over the 31
-/// points off the contour exceeds this many times the median of the other photos'...
-pub const OUTLIER_RATIO: Real = 2.5;
-
-/// ...and this, in canonical units (2% of the eye distance).
-pub const OUTLIER_FLOOR_UNITS: Real = 1.0;
 
 /// Poses closer than this (degrees) count as one pose when deciding whether the photos see the
 /// face from enough directions.
@@ -143,9 +136,6 @@ pub struct DepthOptions {
     /// the jaw points of a turned face on its visible outline, which is not one fixed point of
     /// the face, so they fit no 3D structure well (see [`DepthOptions::default`]).
     pub contour_weight: Real,
-    /// Leave out of the fit, and report, photos whose points do not agree with the others
-    /// ([`OUTLIER_RATIO`], [`OUTLIER_FLOOR_UNITS`]); needs three photos or more.
-    pub drop_outliers: bool,
 }
 
 /// What the depth step may change of the frontal structure's `x, y`.
@@ -177,7 +167,6 @@ impl Default for DepthOptions {
             max_iterations: 100,
             frontal: FrontalFreedom::Free,
             contour_weight: 1.0,
-            drop_outliers: false,
         }
     }
 }
@@ -197,11 +186,6 @@ pub struct PhotoFit {
     pub rms_units: Real,
     /// The RMS over the 31 points off the contour, canonical units.
     pub inner_rms_units: Real,
-    /// The same for the photo's pose fitted to the structure of the other photos (when
-    /// outliers are looked for, [`DepthOptions::drop_outliers`]; else `NaN`).
-    pub held_out_rms_units: Real,
-    /// Whether the photo took part in the structure's fit (see [`DepthWarning::Dropped`]).
-    pub used: bool,
 }
 
 /// Something the caller should know about an estimate.
@@ -214,17 +198,6 @@ pub enum DepthWarning {
         photo: String,
         /// Its RMS error, canonical units.
         rms_units: Real,
-    },
-    /// A photo's points (off the contour) fit the structure of the others much worse than
-    /// theirs do ([`OUTLIER_RATIO`]): wrong landmarks, another face, a strong expression. It
-    /// was left out of the fit.
-    Dropped {
-        /// The photo.
-        photo: String,
-        /// Its RMS error over the 31 points off the contour, canonical units.
-        rms_units: Real,
-        /// The median of the others'.
-        median_units: Real,
     },
     /// Fewer than two distinct poses: depth is seen from too few directions and rests largely on
     /// the reference structure.
@@ -282,16 +255,6 @@ impl std::fmt::Display for DepthWarning {
                 f,
                 "photo {photo} fits the structure badly (RMS {rms_units:.2} units, {:.1}% of the eye distance)",
                 2.0 * rms_units
-            ),
-            Self::Dropped {
-                photo,
-                rms_units,
-                median_units,
-            } => write!(
-                f,
-                "photo {photo} was left out: its points disagree with the other photos' (RMS {rms_units:.2} units \
-                 off the contour, {:.1}× the others' median)",
-                rms_units / median_units.max(Real::MIN_POSITIVE)
             ),
             Self::FewPoses { distinct } => write!(
                 f,
@@ -380,9 +343,6 @@ struct View {
     middle: Point2<Real>,
     /// Each point's weight in the fit ([`DepthOptions::contour_weight`]).
     weights: Vec<Real>,
-    /// Whether the photo takes part in the structure's fit (dropped photos do not, but their
-    /// poses are still fitted and reported).
-    active: bool,
 }
 
 fn prepare_view(photo: &PhotoPoints, frontal_radius: Real, weights: &[Real]) -> Result<View, DepthError> {
@@ -402,7 +362,6 @@ fn prepare_view(photo: &PhotoPoints, frontal_radius: Real, weights: &[Real]) -> 
         kappa,
         middle: Point2::new(middle.x, -middle.y),
         weights: weights.to_vec(),
-        active: true,
     })
 }
 
@@ -515,9 +474,6 @@ impl DepthObjective<'_> {
         let (mut d_shear, mut d_stretch) = (0.0, 0.0);
         let mut count = 0.0;
         for (i, (view, pose)) in self.views.iter().zip(self.poses(base, w)).enumerate() {
-            if !view.active {
-                continue;
-            }
             let m = pose.rotation.matrix();
             let s = pose.scale;
             let c0 = Vector2::new(s * m[(0, 0)], s * m[(1, 0)]);
@@ -733,7 +689,13 @@ pub fn estimate_depth(
     }
     let point_weights: Vec<Real> = POINTS
         .iter()
-        .map(|p| if p.group == Group::Contour { options.contour_weight } else { 1.0 })
+        .map(|p| {
+            if p.group == Group::Contour {
+                options.contour_weight
+            } else {
+                1.0
+            }
+        })
         .collect();
     let frontal_points = &frontal.points;
     let frontal_radius = rms_radius(frontal_points.iter().map(|p| &p.coords));
@@ -761,10 +723,8 @@ pub fn estimate_depth(
         options,
         y_scale,
     };
-    let fit = problem.solve(&views, &mut w, None)?;
+    let fit = problem.solve(&views, &mut w)?;
 
-    let dropped: Vec<DepthWarning> = Vec::new();
-    let held_out = vec![Real::NAN; views.len()];
     let Fit {
         structure,
         poses,
@@ -777,8 +737,7 @@ pub fn estimate_depth(
         .iter()
         .zip(&views)
         .zip(&poses)
-        .enumerate()
-        .map(|(k, ((photo, view), pose))| {
+        .map(|((photo, view), pose)| {
             let rms_units = (reprojection_cost(pose, &view.points, &structure, &view.weights)
                 / view.weights.iter().sum::<Real>())
             .sqrt();
@@ -792,8 +751,6 @@ pub fn estimate_depth(
                 eye_midpoint: view.middle,
                 rms_units,
                 inner_rms_units: inner_rms(view, pose, &structure),
-                held_out_rms_units: held_out[k],
-                used: view.active,
             }
         })
         .collect();
@@ -802,8 +759,7 @@ pub fn estimate_depth(
         &edge_lengths(&structure, &prior.edges),
         &groups,
     );
-    let mut warnings = dropped;
-    warnings.extend(warnings_for(&photo_fits, iterations, converged));
+    let warnings = warnings_for(&photo_fits, iterations, converged);
     Ok(DepthEstimate {
         structure,
         photos: photo_fits,
@@ -848,9 +804,8 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
-    /// The paper's alternation (see the module documentation) over the active views, from the
-    /// unknowns `w` (updated) and, when given, the poses of a previous solve.
-    fn solve(&self, views: &[View], w: &mut Vec<Real>, previous: Option<Vec<Pose>>) -> Result<Fit, DepthError> {
+    /// The paper's alternation (see the module documentation) from the unknowns `w` (updated).
+    fn solve(&self, views: &[View], w: &mut Vec<Real>) -> Result<Fit, DepthError> {
         let options = self.options;
         let depth = DepthObjective {
             frontal: self.frontal,
@@ -861,25 +816,26 @@ impl Problem<'_> {
             options,
             y_scale: self.y_scale,
         };
-        let pose_step = |structure: &[Point3<Real>], previous: Option<&[Pose]>| -> Result<Vec<Pose>, DepthError> {
-            views
-                .iter()
-                .enumerate()
-                .map(|(i, view)| {
-                    let start = match previous {
-                        Some(poses) => Some(poses[i]),
-                        None => closed_form_pose(&view.points, structure, &view.weights),
-                    };
-                    let start = start.ok_or_else(|| DepthError::NoPose {
-                        photo: self.photos[i].name.clone(),
-                    })?;
-                    Ok(refine_pose(start, &view.points, structure, &view.weights))
-                })
-                .collect()
-        };
+        let pose_step =
+            |structure: &[Point3<Real>], previous: Option<&[Pose]>| -> Result<Vec<Pose>, DepthError> {
+                views
+                    .iter()
+                    .enumerate()
+                    .map(|(i, view)| {
+                        let start = match previous {
+                            Some(poses) => Some(poses[i]),
+                            None => closed_form_pose(&view.points, structure, &view.weights),
+                        };
+                        let start = start.ok_or_else(|| DepthError::NoPose {
+                            photo: self.photos[i].name.clone(),
+                        })?;
+                        Ok(refine_pose(start, &view.points, structure, &view.weights))
+                    })
+                    .collect()
+            };
         let objective_of = |structure: &[Point3<Real>], poses: &[Pose]| -> Real {
             let (mut sum, mut count) = (0.0, 0.0);
-            for (view, pose) in views.iter().zip(poses).filter(|(v, _)| v.active) {
+            for (view, pose) in views.iter().zip(poses) {
                 sum += reprojection_cost(pose, &view.points, structure, &view.weights);
                 count += view.weights.iter().sum::<Real>();
             }
@@ -893,7 +849,7 @@ impl Problem<'_> {
         };
 
         let mut structure = depth.structure(w);
-        let mut poses = pose_step(&structure, previous.as_deref())?;
+        let mut poses = pose_step(&structure, None)?;
         let mut objective = vec![objective_of(&structure, &poses)];
         let mut converged = false;
         let mut iterations = 0;

@@ -64,7 +64,11 @@ impl Pose {
 /// nearest scaled map with orthonormal rows (`M = U Σ Vᵀ` gives `s R₁₂ = mean(σ) · U Vᵀ`); the
 /// third row of `R` is the cross product of the first two. `None` when the structure is
 /// degenerate (all points on a line).
-pub(crate) fn closed_form_pose(view: &[Point2<Real>], structure: &[Point3<Real>], weights: &[Real]) -> Option<Pose> {
+pub(crate) fn closed_form_pose(
+    view: &[Point2<Real>],
+    structure: &[Point3<Real>],
+    weights: &[Real],
+) -> Option<Pose> {
     let mut cross = Matrix2x3::zeros(); // Σ wⱼ xⱼ Xⱼᵀ
     let mut gram = Matrix3::zeros(); // Σ wⱼ Xⱼ Xⱼᵀ
     for ((x, p), w) in view.iter().zip(structure).zip(weights) {
@@ -111,7 +115,12 @@ pub(crate) fn reprojection_cost(
 
 /// Levenberg–Marquardt refinement of a pose over its 4 parameters (a rotation vector applied
 /// on the left, and the scale), from `start`. Never returns a pose worse than `start`.
-pub(crate) fn refine_pose(start: Pose, view: &[Point2<Real>], structure: &[Point3<Real>], weights: &[Real]) -> Pose {
+pub(crate) fn refine_pose(
+    start: Pose,
+    view: &[Point2<Real>],
+    structure: &[Point3<Real>],
+    weights: &[Real],
+) -> Pose {
     let mut pose = start;
     let mut cost = reprojection_cost(&pose, view, structure, weights);
     let mut damping = 1e-6;

@@ -196,7 +196,10 @@ pub struct LandmarkedFace {
 /// The centre start alone, with the mirror, left 3 (6.1%).
 pub const BOX_SHIFTS: [crate::Real; 3] = [-0.2, 0.0, 0.2];
 
-fn mirrored_points(points: &[nalgebra::Point2<crate::Real>], width: u32) -> Vec<nalgebra::Point2<crate::Real>> {
+fn mirrored_points(
+    points: &[nalgebra::Point2<crate::Real>],
+    width: u32,
+) -> Vec<nalgebra::Point2<crate::Real>> {
     crate::structure::IBUG_MIRROR
         .iter()
         .map(|&k| nalgebra::Point2::new(crate::Real::from(width) - 1.0 - points[k].x, points[k].y))
@@ -251,20 +254,40 @@ pub fn landmark_face(
         for (side, other) in [(0, 1), (1, 0)] {
             // The answer from this side, in the photo's frame.
             let on_side = |points: Vec<nalgebra::Point2<crate::Real>>, s: usize| {
-                if s == 0 { points } else { mirrored_points(&points, width) }
+                if s == 0 {
+                    points
+                } else {
+                    mirrored_points(&points, width)
+                }
             };
-            let boxed = if side == 0 { shifted } else { mirrored_box(shifted, width) };
+            let boxed = if side == 0 {
+                shifted
+            } else {
+                mirrored_box(shifted, width)
+            };
             let answer = on_side(model.predict(&sides[side], boxed), side);
             // The other side's answer from the box this one implies.
             let Some(implied) = model.box_for(&answer) else {
                 continue;
             };
-            let implied = if other == 0 { implied } else { mirrored_box(implied, width) };
+            let implied = if other == 0 {
+                implied
+            } else {
+                mirrored_box(implied, width)
+            };
             let check = on_side(model.predict(&sides[other], implied), other);
             let eyes = (answer[45] - answer[36]).norm().max(1.0);
-            let disagreement = (17..68).map(|k| (answer[k] - check[k]).norm()).sum::<crate::Real>() / 51.0 / eyes;
+            let disagreement = (17..68)
+                .map(|k| (answer[k] - check[k]).norm())
+                .sum::<crate::Real>()
+                / 51.0
+                / eyes;
             if best.as_ref().is_none_or(|(d, _)| disagreement < *d) {
-                let mean = answer.iter().zip(&check).map(|(a, b)| nalgebra::center(a, b)).collect();
+                let mean = answer
+                    .iter()
+                    .zip(&check)
+                    .map(|(a, b)| nalgebra::center(a, b))
+                    .collect();
                 best = Some((disagreement, mean));
             }
         }

@@ -30,6 +30,7 @@ fn photo_fit() -> PhotoFit {
         pose: Pose::from_yaw_pitch_roll_degrees(10.0, 5.0, 0.0, 2.0),
         rms_pixels: 0.0,
         rms_units: 0.0,
+        inner_rms_units: 0.0,
         eye_midpoint: Point2::new(320.0, 200.0),
     }
 }

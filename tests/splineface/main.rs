@@ -19,6 +19,7 @@ mod landmarker;
 mod landmarks;
 mod mesh;
 mod mesh_closest;
+mod photoreal;
 mod pipeline;
 mod rasl;
 mod reference;

@@ -194,3 +194,54 @@ impl Ict {
         self.subject(&weights)
     }
 }
+
+/// The 68 landmarks of a face seen from `view`, as a landmarker places them: the landmark
+/// vertices, except the jaw points off the chin (iBUG 0–5 and 11–16), which a landmarker puts
+/// on the face's visible outline at their height. For such a point, the candidates are the
+/// mesh's vertices on its side of the face within `band` of its height (face frame), no
+/// farther out than the landmark vertex and in front of it; the one seen farthest toward that
+/// side (along the face's horizontal axis in the view) is the point on the outline. On a
+/// frontal view that is close to the landmark vertex; on the side turned away it moves in
+/// toward the nose, as the occluding contour does (eos's contour fitting models the same
+/// behaviour).
+pub fn landmarks_in_view(
+    mesh: &TriangleMesh,
+    landmarks: &[usize],
+    view: &splineface::render::View,
+    band: Real,
+) -> Vec<Point3<Real>> {
+    let positions = mesh.positions();
+    let eyes = |side: std::ops::Range<usize>| {
+        let n = side.len() as Real;
+        Point3::from(
+            side.map(|k| positions[landmarks[k]].coords)
+                .sum::<nalgebra::Vector3<Real>>()
+                / n,
+        )
+    };
+    let axis = {
+        let (right, left) = (view.apply(&eyes(36..42)), view.apply(&eyes(42..48)));
+        (left - right).xy().normalize()
+    };
+    (0..landmarks.len())
+        .map(|k| {
+            let vertex = positions[landmarks[k]];
+            if !(k <= 5 || (11..=16).contains(&k)) {
+                return vertex;
+            }
+            let side = vertex.x.signum();
+            let outward = |p: &Point3<Real>| side * view.apply(p).xy().coords.dot(&axis);
+            positions
+                .iter()
+                .filter(|p| {
+                    (p.y - vertex.y).abs() <= band
+                        && p.x * side >= 0.0
+                        && p.x.abs() <= vertex.x.abs()
+                        && p.z >= vertex.z - band
+                })
+                .copied()
+                .max_by(|a, b| outward(a).total_cmp(&outward(b)))
+                .unwrap_or(vertex)
+        })
+        .collect()
+}

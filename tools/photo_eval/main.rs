@@ -139,6 +139,9 @@ struct Landmarks<'a> {
 
 impl Landmarks<'_> {
     fn of(&mut self, key: &str, photo: &Photo) -> Option<Vec<Point2<Real>>> {
+        if std::env::var("TRUTHLM").is_ok() {
+            return Some(photo.projected.clone());
+        }
         self.found
             .entry(key.to_owned())
             .or_insert_with(|| {
@@ -168,18 +171,30 @@ struct Outcome {
 
 /// A grey patch of `side × side` samples about `centre`, `step` pixels apart along the eye
 /// axis `axis` (unit) and across it, normalised to zero mean and unit norm.
-fn patch(image: &image::GrayImage, centre: Point2<Real>, axis: nalgebra::Vector2<Real>, step: Real, side: i64) -> Vec<Real> {
+fn patch(
+    image: &image::GrayImage,
+    centre: Point2<Real>,
+    axis: nalgebra::Vector2<Real>,
+    step: Real,
+    side: i64,
+) -> Vec<Real> {
     let across = nalgebra::Vector2::new(-axis.y, axis.x);
     let mut values = Vec::new();
     let half = side / 2;
     for b in -half..=half {
         for a in -half..=half {
             let q = centre + axis * (a as Real * step) + across * (b as Real * step);
-            let (x, y) = (q.x.clamp(0.0, image.width() as Real - 2.0), q.y.clamp(0.0, image.height() as Real - 2.0));
+            let (x, y) = (
+                q.x.clamp(0.0, image.width() as Real - 2.0),
+                q.y.clamp(0.0, image.height() as Real - 2.0),
+            );
             let (x0, y0) = (x.floor(), y.floor());
             let (fx, fy) = (x - x0, y - y0);
             let v = |dx: u32, dy: u32| Real::from(image.get_pixel(x0 as u32 + dx, y0 as u32 + dy)[0]);
-            values.push((v(0, 0) * (1.0 - fx) + v(1, 0) * fx) * (1.0 - fy) + (v(0, 1) * (1.0 - fx) + v(1, 1) * fx) * fy);
+            values.push(
+                (v(0, 0) * (1.0 - fx) + v(1, 0) * fx) * (1.0 - fy)
+                    + (v(0, 1) * (1.0 - fx) + v(1, 1) * fx) * fy,
+            );
         }
     }
     let mean = values.iter().sum::<Real>() / values.len() as Real;
@@ -198,7 +213,9 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
             let (r, l) = (nalgebra::center(&p[36], &p[39]), nalgebra::center(&p[42], &p[45]));
             let axis = (l - r).normalize();
             let eyes = (l - r).norm();
-            (17..68).map(|k| patch(image, p[k], axis, 0.025 * eyes, 9)).collect()
+            (17..68)
+                .map(|k| patch(image, p[k], axis, 0.025 * eyes, 9))
+                .collect()
         })
         .collect();
     (0..photos.len())
@@ -207,7 +224,13 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
                 .map(|k| {
                     let others: Vec<Real> = (0..photos.len())
                         .filter(|&j| j != i)
-                        .map(|j| patches[i][k].iter().zip(&patches[j][k]).map(|(a, b)| a * b).sum::<Real>())
+                        .map(|j| {
+                            patches[i][k]
+                                .iter()
+                                .zip(&patches[j][k])
+                                .map(|(a, b)| a * b)
+                                .sum::<Real>()
+                        })
                         .collect();
                     others.iter().sum::<Real>() / others.len().max(1) as Real
                 })
@@ -241,14 +264,23 @@ fn run_set(
         let greys: Vec<(image::GrayImage, Vec<Point2<Real>>, String)> = set
             .photos
             .iter()
-            .filter_map(|(key, photo)| landmarks.of(key, photo).map(|p| (photo.image.to_luma8(), p, format!("{:+.0}", photo.ypr[0]))))
+            .filter_map(|(key, photo)| {
+                landmarks
+                    .of(key, photo)
+                    .map(|p| (photo.image.to_luma8(), p, format!("{:+.0}", photo.ypr[0])))
+            })
             .collect();
-        let list: Vec<(&image::GrayImage, Vec<Point2<Real>>)> = greys.iter().map(|(g, p, _)| (g, p.clone())).collect();
+        let list: Vec<(&image::GrayImage, Vec<Point2<Real>>)> =
+            greys.iter().map(|(g, p, _)| (g, p.clone())).collect();
         let c = patch_consistency(&list);
         eprintln!(
             "  {} patch consistency: {}",
             set.label,
-            c.iter().zip(&greys).map(|(v, g)| format!("{}:{v:.2}", g.2)).collect::<Vec<_>>().join(" ")
+            c.iter()
+                .zip(&greys)
+                .map(|(v, g)| format!("{}:{v:.2}", g.2))
+                .collect::<Vec<_>>()
+                .join(" ")
         );
     }
     match reconstruct(&inputs, reference, options, |_| {}) {
@@ -289,7 +321,13 @@ fn diagnose(result: &Reconstruction, set: &Set<'_>, subject: &Subject) {
     };
     let mut line = format!("  {}: structure mm (xyz/z)", set.label);
     let _ = &mut line;
-    for (name, range) in [("contour", 0..9), ("brows", 9..15), ("eyes", 15..25), ("nose", 25..32), ("mouth", 32..40)] {
+    for (name, range) in [
+        ("contour", 0..9),
+        ("brows", 9..15),
+        ("eyes", 15..25),
+        ("nose", 25..32),
+        ("mouth", 32..40),
+    ] {
         let n = range.len() as Real;
         let (mut e, mut ez) = (0.0, 0.0);
         for k in range {
@@ -304,12 +342,10 @@ fn diagnose(result: &Reconstruction, set: &Set<'_>, subject: &Subject) {
         if let Some((_, photo)) = set.photos.iter().find(|(_, p)| p.name == fit.name) {
             let [y, p, _] = fit.pose.yaw_pitch_roll_degrees();
             yaw_errors.push(format!(
-                "{:+.0}/{:+.0}:{:.2}/{:.2}{}",
+                "{:+.0}/{:+.0}:{:.2}",
                 y - photo.ypr[0],
                 p - photo.ypr[1],
                 fit.inner_rms_units,
-                fit.held_out_rms_units,
-                if fit.used { "" } else { "(dropped)" }
             ));
         }
     }
@@ -426,28 +462,99 @@ fn methods(names: &[String]) -> Result<Vec<(String, PipelineOptions)>> {
         ("default", default),
         ("contour 1", with_depth(&|d| d.contour_weight = 1.0)),
         ("contour 0.1", with_depth(&|d| d.contour_weight = 0.1)),
-        ("contour 0.1 drop", with_depth(&|d| {
-            d.contour_weight = 0.1;
-            d.drop_outliers = true;
-        })),
-        ("contour 1 drop", with_depth(&|d| {
-            d.contour_weight = 1.0;
-            d.drop_outliers = true;
-        })),
-        ("c0.1 a0", PipelineOptions { structure_weight: 0.0, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("c0.1 a0.25", PipelineOptions { structure_weight: 0.25, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("c0.1 a0.5", PipelineOptions { structure_weight: 0.5, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("c0.1 a0.75", PipelineOptions { structure_weight: 0.75, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("c0.1 a0.5 affine", PipelineOptions { structure_weight: 0.5, deformation: Deformation::Affine, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("c0.1 affine", PipelineOptions { deformation: Deformation::Affine, ..with_depth(&|d| d.contour_weight = 0.1) }),
-        ("contour 1 all", PipelineOptions {
-            drop_disagreeing: false,
-            ..with_depth(&|d| d.contour_weight = 1.0)
-        }),
-        ("contour 0.1 all", PipelineOptions {
-            drop_disagreeing: false,
-            ..with_depth(&|d| d.contour_weight = 0.1)
-        }),
+        ("cal c0.1", with_depth(&|d| d.contour_weight = 0.1)),
+        (
+            "cal c0.1 a0.5",
+            PipelineOptions {
+                structure_weight: 0.5,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "cal c0.1 a0.25",
+            PipelineOptions {
+                structure_weight: 0.25,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "cal c0.1 a0.75",
+            PipelineOptions {
+                structure_weight: 0.75,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "cal c0 a0.5",
+            PipelineOptions {
+                structure_weight: 0.5,
+                ..with_depth(&|d| d.contour_weight = 0.0)
+            },
+        ),
+        (
+            "cal c0.3 a0.5",
+            PipelineOptions {
+                structure_weight: 0.5,
+                ..with_depth(&|d| d.contour_weight = 0.3)
+            },
+        ),
+        (
+            "c0.1 a0",
+            PipelineOptions {
+                structure_weight: 0.0,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "c0.1 a0.25",
+            PipelineOptions {
+                structure_weight: 0.25,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "c0.1 a0.5",
+            PipelineOptions {
+                structure_weight: 0.5,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "c0.1 a0.75",
+            PipelineOptions {
+                structure_weight: 0.75,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "c0.1 a0.5 affine",
+            PipelineOptions {
+                structure_weight: 0.5,
+                deformation: Deformation::Affine,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "c0.1 affine",
+            PipelineOptions {
+                deformation: Deformation::Affine,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
+        (
+            "contour 1 all",
+            PipelineOptions {
+                drop_disagreeing: false,
+                ..with_depth(&|d| d.contour_weight = 1.0)
+            },
+        ),
+        (
+            "contour 0.1 all",
+            PipelineOptions {
+                drop_disagreeing: false,
+                ..with_depth(&|d| d.contour_weight = 0.1)
+            },
+        ),
     ];
     if names.is_empty() {
         return Ok(all.into_iter().take(1).map(|(n, o)| (n.to_owned(), o)).collect());
@@ -546,6 +653,83 @@ fn main() -> Result<()> {
         .map(|s| score(&mean_face.mesh, &mean_face.structure, s))
         .collect::<Result<_>>()?;
     let methods = methods(&args.methods)?;
+    // The reference structure as the photo path sees the reference face itself.
+    let calibrated = if std::env::var("CALIBRATE").is_ok() {
+        let mut estimates: Vec<Vec<Point3<Real>>> = Vec::new();
+        let mut options = PipelineOptions::default();
+        options.depth.contour_weight = 0.1;
+        for (k, skin) in skins.iter().enumerate() {
+            let face = subjects::ict_face(&ict, format!("mean-{}", skin.name), &[], skin)?;
+            let dir = photos::render_pool(
+                &face,
+                args.pool,
+                45.0,
+                11,
+                &args.out.join("pools").join(&face.name),
+            )?;
+            let pool = photos::read_set(&dir)?;
+            for seed in 0..3u64 {
+                let chosen = choose(args.pool, 8, 5000 + seed + 10 * k as u64);
+                let set = Set {
+                    subject: 0,
+                    label: String::new(),
+                    photos: chosen
+                        .iter()
+                        .map(|&i| (format!("{}/{}", face.name, pool[i].name), &pool[i]))
+                        .collect(),
+                };
+                if let (_, Some(result)) = run_set(&set, &face, &mut landmarks, reference, &options)? {
+                    let inner: Vec<usize> = (9..40).collect();
+                    let pick = |ps: &[Point3<Real>]| inner.iter().map(|&k| ps[k]).collect::<Vec<_>>();
+                    let est = &result.depth.structure;
+                    let (map, _) =
+                        splineface::compare::fit_similarity(&pick(est), &pick(reference.structure()))
+                            .context("similarity")?;
+                    estimates.push(est.iter().map(|p| map * p).collect());
+                }
+            }
+        }
+        let n = estimates.len() as Real;
+        let mean: Vec<Point3<Real>> = (0..40)
+            .map(|k| {
+                Point3::from(
+                    estimates
+                        .iter()
+                        .map(|e| e[k].coords)
+                        .sum::<nalgebra::Vector3<Real>>()
+                        / n,
+                )
+            })
+            .collect();
+        let (_, unified) = splineface::structure::unify(&mean)?;
+        let shift: Vec<String> = unified
+            .iter()
+            .zip(reference.structure())
+            .map(|(a, b)| {
+                let d = a - b;
+                format!("({:.1} {:.1} {:.1})", d.x, d.y, d.z)
+            })
+            .collect();
+        eprintln!(
+            "calibrated from {} estimates; moved points by {}",
+            estimates.len(),
+            shift.join(" ")
+        );
+        let spread: Vec<String> = (0..40)
+            .map(|k| {
+                let m = mean[k];
+                let v = estimates.iter().map(|e| (e[k] - m).norm_squared()).sum::<Real>() / n;
+                format!("{:.1}", v.sqrt())
+            })
+            .collect();
+        eprintln!("spread of the estimates per point: {}", spread.join(" "));
+        let mut json: serde_json::Value = serde_json::from_str(&reference.to_json())?;
+        json["structure"] =
+            serde_json::to_value(unified.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>())?;
+        Some(ReferenceFace::from_json(&json.to_string())?)
+    } else {
+        None
+    };
     if std::env::var("ORACLE").is_ok() {
         // The reference deformed to each subject's true structure: the most the structure can give.
         let units = Units::default();
@@ -554,13 +738,20 @@ fn main() -> Result<()> {
                 let (_, unified) = splineface::structure::unify(&subject.structure)?;
                 unified
             };
-            let mut line = format!("oracle {}: mean face {:.2}", subject.name, baselines[s].distance.mean);
+            let mut line = format!(
+                "oracle {}: mean face {:.2}",
+                subject.name, baselines[s].distance.mean
+            );
             for (label, deformation) in [("affine", Deformation::Affine), ("local", Deformation::default())] {
                 for alpha in [0.5, 1.0] {
                     let target = splineface::face::shrunk_toward_reference(reference, &canonical, alpha)?;
                     let face = FaceSurface::deform(reference, &target, deformation)?;
-                    let mesh = face.mesh(&MeshOptions::default())?.mesh.transformed(&units.transform());
-                    let structure: Vec<Point3<Real>> = target.iter().map(|p| p * units.per_canonical_unit()).collect();
+                    let mesh = face
+                        .mesh(&MeshOptions::default())?
+                        .mesh
+                        .transformed(&units.transform());
+                    let structure: Vec<Point3<Real>> =
+                        target.iter().map(|p| p * units.per_canonical_unit()).collect();
                     let r = score(&mesh, &structure, subject)?.distance.mean / baselines[s].distance.mean;
                     line += &format!(", {label} α {alpha} {r:.2}");
                 }
@@ -573,11 +764,26 @@ fn main() -> Result<()> {
     let mut results: Vec<Vec<Outcome>> = Vec::new();
     for (name, options) in &methods {
         let mut outcomes = Vec::new();
+        let chosen_reference = if name.contains("cal") {
+            calibrated.as_ref().context("CALIBRATE=1 for cal methods")?
+        } else {
+            reference
+        };
         for set in &sets {
-            let (outcome, _) = run_set(set, &subjects[set.subject], &mut landmarks, reference, options)?;
+            let (outcome, _) = run_set(
+                set,
+                &subjects[set.subject],
+                &mut landmarks,
+                chosen_reference,
+                options,
+            )?;
             outcomes.push(outcome);
         }
-        eprintln!("{name}: {} sets ({:.0} s)", sets.len(), started.elapsed().as_secs_f64());
+        eprintln!(
+            "{name}: {} sets ({:.0} s)",
+            sets.len(),
+            started.elapsed().as_secs_f64()
+        );
         results.push(outcomes);
     }
     let ratio = |set: &Set<'_>, outcome: &Outcome| {
@@ -597,7 +803,10 @@ fn main() -> Result<()> {
          landmarks, then ICP), the whole photo path; the mean face is scored the same way in the same run. \
          Ratios are to the mean face's error on the same subject (lower is better; 1 = no better than the mean face).\n"
     )?;
-    writeln!(page, "## Methods by photo count: mean ratio (worst; sets worse than the mean face)\n")?;
+    writeln!(
+        page,
+        "## Methods by photo count: mean ratio (worst; sets worse than the mean face)\n"
+    )?;
     write!(page, "| method |")?;
     for c in &counts {
         write!(page, " {c} |")?;
@@ -621,7 +830,11 @@ fn main() -> Result<()> {
                 of.iter().filter(|&&r| r > 1.0).count()
             )?;
         }
-        writeln!(page, " {} |", outcomes.iter().filter(|o| o.score.is_none()).count())?;
+        writeln!(
+            page,
+            " {} |",
+            outcomes.iter().filter(|o| o.score.is_none()).count()
+        )?;
     }
 
     writeln!(page, "\n## Every set, {}\n", methods[0].0)?;
@@ -640,7 +853,12 @@ fn main() -> Result<()> {
         )?;
         for outcomes in &results {
             match (&outcomes[k].score, &outcomes[k].error) {
-                (Some(s), _) => write!(page, " {:.2} ({:.2}) |", s.distance.mean, ratio(set, &outcomes[k]).unwrap_or(Real::NAN))?,
+                (Some(s), _) => write!(
+                    page,
+                    " {:.2} ({:.2}) |",
+                    s.distance.mean,
+                    ratio(set, &outcomes[k]).unwrap_or(Real::NAN)
+                )?,
                 (None, e) => write!(page, " failed: {} |", e.clone().unwrap_or_default())?,
             }
         }
@@ -648,7 +866,10 @@ fn main() -> Result<()> {
     }
 
     // Self-consistency: two disjoint halves of 16 photos.
-    writeln!(page, "\n## Self-consistency: two disjoint halves of 16 photos, symmetric mean distance (mm)\n")?;
+    writeln!(
+        page,
+        "\n## Self-consistency: two disjoint halves of 16 photos, symmetric mean distance (mm)\n"
+    )?;
     write!(page, "| subject |")?;
     for (name, _) in &methods {
         write!(page, " {name} |")?;

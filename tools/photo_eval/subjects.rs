@@ -439,6 +439,11 @@ pub fn skins(sources: &[(String, image::RgbImage)], model: &ShapePredictor, ict:
 pub fn ict_subject(ict: &Ict, index: usize, seed: u64, skin: &Skin) -> Result<Subject> {
     let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9).wrapping_add(index as u64 + 1));
     let weights: Vec<Real> = (0..ict.modes).map(|_| rng.gaussian()).collect();
+    ict_face(ict, format!("ict-{index}"), &weights, skin)
+}
+
+/// The ICT face with identity weights `weights` in millimetres, wearing `skin`.
+pub fn ict_face(ict: &Ict, name: String, weights: &[Real], skin: &Skin) -> Result<Subject> {
     let positions: Vec<Point3<Real>> = ict.positions(&weights).iter().map(|p| p * 10.0).collect();
     let truth = TriangleMesh::new(positions, ict.neutral.triangles().to_vec())?;
     let textured = truth
@@ -448,7 +453,7 @@ pub fn ict_subject(ict: &Ict, index: usize, seed: u64, skin: &Skin) -> Result<Su
     let ibug: Vec<Point3<Real>> = ict.landmarks.iter().map(|&v| truth.positions()[v]).collect();
     let structure = from_ibug68(&ibug)?;
     Ok(Subject {
-        name: format!("ict-{index}"),
+        name,
         target: face_target(&structure),
         mesh,
         colour: skin.colour.clone(),

@@ -1,0 +1,244 @@
+//! The photo-realistic renderer against closed forms, and the landmark patch agreement on
+//! photos it renders.
+
+use nalgebra::{Point2, Point3, Vector3};
+use splineface::Real;
+use splineface::align::{GreyImage, PhotoPoints, disagreeing_photos, landmark_agreement};
+use splineface::face::{Deformation, FaceSurface, MeshOptions};
+use splineface::mesh::{TextureCoordinates, TriangleMesh};
+use splineface::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
+
+use crate::common::Lcg;
+
+/// A plain look: no blur, no noise, one sample a pixel, a black background.
+fn plain() -> PhotoLook {
+    PhotoLook {
+        background_top: [0.0; 3],
+        background_bottom: [0.0; 3],
+        blur: 0.0,
+        noise: 0.0,
+        seed: 0,
+        supersampling: 1,
+    }
+}
+
+/// Ambient light only, at full strength: a pixel shows its texel's colour.
+fn ambient() -> Lighting {
+    Lighting {
+        direction: Vector3::z(),
+        diffuse: 0.0,
+        ambient: 1.0,
+        specular: 0.0,
+        shininess: 1.0,
+        shadow_softness: 0.0,
+    }
+}
+
+/// A square of side 2 in the plane `z = 0`, facing `+z`, with texture coordinates `(u, v) =
+/// ((x + 1)/2, (y + 1)/2)`.
+fn square() -> TriangleMesh {
+    let positions = vec![
+        Point3::new(-1.0, -1.0, 0.0),
+        Point3::new(1.0, -1.0, 0.0),
+        Point3::new(1.0, 1.0, 0.0),
+        Point3::new(-1.0, 1.0, 0.0),
+    ];
+    let triangles = vec![[0, 1, 2], [0, 2, 3]];
+    let uvs = positions
+        .iter()
+        .map(|p| Point2::new((p.x + 1.0) / 2.0, (p.y + 1.0) / 2.0))
+        .collect();
+    TriangleMesh::new(positions, triangles.clone())
+        .unwrap()
+        .with_texture(TextureCoordinates { uvs, triangles })
+        .unwrap()
+}
+
+#[test]
+fn a_frontal_square_shows_its_texture_where_the_camera_projects_it() {
+    // Left half of the map red, right half blue, top half brighter: each quadrant its colour.
+    let map = image::RgbImage::from_fn(64, 64, |x, y| {
+        let bright = if y < 32 { 200 } else { 100 };
+        if x < 32 {
+            image::Rgb([bright, 0, 0])
+        } else {
+            image::Rgb([0, 0, bright])
+        }
+    });
+    let camera = Camera::looking_at_head(0.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    let image = render_photo(&square(), &ColourMap::new(&map), &camera, &ambient(), &plain()).unwrap();
+    // The square spans ±200·1/10 = ±20 pixels about the centre (50, 50).
+    assert_eq!(
+        camera.project(&Point3::new(1.0, 1.0, 0.0)).unwrap(),
+        Point2::new(70.0, 30.0)
+    );
+    let at = |x: u32, y: u32| image.get_pixel(x, y).0;
+    assert_eq!(at(40, 40), [200, 0, 0], "upper left: bright red");
+    assert_eq!(at(60, 40), [0, 0, 200], "upper right: bright blue");
+    assert_eq!(at(40, 60), [100, 0, 0], "lower left");
+    assert_eq!(at(60, 60), [0, 0, 100], "lower right");
+    assert_eq!(at(20, 50), [0, 0, 0], "outside: the background");
+    assert_eq!(at(80, 50), [0, 0, 0]);
+}
+
+#[test]
+fn lambert_shading_follows_the_light_and_a_blocker_casts_a_shadow() {
+    let white = ColourMap::new(&image::RgbImage::from_pixel(4, 4, image::Rgb([255, 255, 255])));
+    let camera = Camera::looking_at_head(0.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    let tilted = Lighting {
+        direction: Vector3::new(0.0, 0.0, 1.0),
+        diffuse: 0.5,
+        ambient: 0.0,
+        ..ambient()
+    };
+    let image = render_photo(&square(), &white, &camera, &tilted, &plain()).unwrap();
+    // Linear 0.5 is sRGB 0.7354 → 188.
+    assert_eq!(image.get_pixel(50, 50).0, [188, 188, 188]);
+    // At 60° the light gives half as much: linear 0.25 → sRGB 137.
+    let slanted = Lighting {
+        direction: Vector3::new(3.0_f64.sqrt(), 0.0, 1.0),
+        ..tilted
+    };
+    let image = render_photo(&square(), &white, &camera, &slanted, &plain()).unwrap();
+    assert_eq!(image.get_pixel(50, 50).0, [137, 137, 137]);
+    // A small square hovering over the big one, between it and a light straight above the
+    // camera's axis: the big square's centre is in its shadow, its corners are not.
+    let mut positions = square().positions().to_vec();
+    positions.extend(
+        square()
+            .positions()
+            .iter()
+            .map(|p| Point3::new(0.2 * p.x, 0.2 * p.y, 0.5)),
+    );
+    let mut triangles = square().triangles().to_vec();
+    triangles.extend([[4, 5, 6], [4, 6, 7]]);
+    let uvs: Vec<Point2<Real>> = positions.iter().map(|_| Point2::new(0.5, 0.5)).collect();
+    let both = TriangleMesh::new(positions, triangles.clone())
+        .unwrap()
+        .with_texture(TextureCoordinates { uvs, triangles })
+        .unwrap();
+    // Seen from the side so that the blocker does not hide the shadow from the camera.
+    let side = Camera::looking_at_head(30.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    // The light's direction is given in the camera's viewing frame: the world's +z seen from
+    // the side camera is (sin 30°, 0, cos 30°) there.
+    let overhead = Lighting {
+        direction: Vector3::new(0.5, 0.0, 3.0_f64.sqrt() / 2.0),
+        ..tilted
+    };
+    let image = render_photo(&both, &white, &side, &overhead, &plain()).unwrap();
+    let shadowed = side.project(&Point3::new(0.0, 0.0, 0.0)).unwrap();
+    let lit = side.project(&Point3::new(0.0, 0.8, 0.0)).unwrap();
+    let value = |p: Point2<Real>| image.get_pixel(p.x.round() as u32, p.y.round() as u32).0[0];
+    assert_eq!(value(shadowed), 0, "under the blocker");
+    assert_eq!(value(lit), 188, "beside it");
+}
+
+/// The demo subject as a textured mesh (texture coordinates: its surface parameters) and a
+/// procedural skin: mottled, with dark brows, eyes and lips at its structure points.
+fn textured_subject() -> (TriangleMesh, ColourMap, Vec<Point3<Real>>) {
+    let subject = splineface::demo::subject();
+    let face = FaceSurface::deform(subject, subject.structure(), Deformation::Affine).unwrap();
+    let clipped = face.mesh(&MeshOptions { spacing: 0.7 }).unwrap();
+    let texture = TextureCoordinates {
+        uvs: clipped.params.clone(),
+        triangles: clipped.mesh.triangles().to_vec(),
+    };
+    let mesh = clipped.mesh.with_texture(texture).unwrap();
+    let features: Vec<(Point2<Real>, Real)> = face
+        .structure_params()
+        .iter()
+        .enumerate()
+        .filter_map(|(k, p)| match splineface::structure::POINTS[k].group {
+            splineface::structure::Group::Brows | splineface::structure::Group::Eyes => Some((*p, 0.012)),
+            splineface::structure::Group::Mouth => Some((*p, 0.015)),
+            splineface::structure::Group::Nose => Some((*p, 0.008)),
+            _ => None,
+        })
+        .collect();
+    let mut rng = Lcg(5);
+    let blots: Vec<(Point2<Real>, Real)> = (0..400)
+        .map(|_| {
+            (
+                Point2::new(rng.uniform(0.0, 1.0), rng.uniform(0.0, 1.0)),
+                rng.uniform(0.004, 0.015),
+            )
+        })
+        .collect();
+    let size = 256;
+    let map = image::RgbImage::from_fn(size, size, |x, y| {
+        let p = Point2::new(
+            (x as Real + 0.5) / size as Real,
+            1.0 - (y as Real + 0.5) / size as Real,
+        );
+        let mut dark = 0.0;
+        for (c, r) in features.iter().chain(&blots) {
+            dark += 0.5 * (-(p - c).norm_squared() / (2.0 * r * r)).exp();
+        }
+        let v = 1.0 - dark.min(0.85);
+        image::Rgb([(220.0 * v) as u8, (170.0 * v) as u8, (150.0 * v) as u8])
+    });
+    (mesh, ColourMap::new(&map), subject.structure().to_vec())
+}
+
+#[test]
+fn photos_whose_landmarks_mark_other_places_are_singled_out() {
+    let (mesh, colour, structure) = textured_subject();
+    let lighting = Lighting::default();
+    let look = PhotoLook {
+        noise: 0.005,
+        ..PhotoLook::default()
+    };
+    let target = Point3::new(0.0, -20.0, 0.0);
+    let mut photos: Vec<(GreyImage, PhotoPoints)> = Vec::new();
+    for (k, yaw) in [-30.0, -12.0, 0.0, 15.0, 28.0].into_iter().enumerate() {
+        let camera = Camera::looking_at_head(yaw, 5.0, 0.0, &target, 600.0, 1600.0, 240, 300);
+        let image = render_photo(
+            &mesh,
+            &colour,
+            &camera,
+            &lighting,
+            &PhotoLook {
+                seed: k as u64,
+                ..look
+            },
+        )
+        .unwrap();
+        let points = structure.iter().map(|p| camera.project(p).unwrap()).collect();
+        photos.push((
+            GreyImage::from_dynamic(&image::DynamicImage::ImageRgb8(image)).unwrap(),
+            PhotoPoints::new(format!("p{k}"), points).unwrap(),
+        ));
+    }
+    let pairs: Vec<(&GreyImage, &PhotoPoints)> = photos.iter().map(|(g, p)| (g, p)).collect();
+    let agreement = landmark_agreement(&pairs);
+    assert!(
+        agreement.iter().all(|&a| a > 0.5),
+        "right landmarks agree: {agreement:?}"
+    );
+    assert!(disagreeing_photos(&agreement).is_empty());
+
+    // The points of photo 3 moved a third of the eye distance sideways and mirrored: a face
+    // turned the other way, where the cheek is (what dlib's model does on some turned faces).
+    let eyes = (photos[3].1.points[24] - photos[3].1.points[23]).norm();
+    let centre = photos[3].1.points[23];
+    let wrong: Vec<Point2<Real>> = photos[3]
+        .1
+        .points
+        .iter()
+        .map(|p| Point2::new(2.0 * centre.x - p.x + 0.35 * eyes, p.y))
+        .collect();
+    let wrong = PhotoPoints::new("p3", splineface::structure::swap_partners(&wrong).unwrap()).unwrap();
+    let mut pairs = pairs;
+    pairs[3] = (&photos[3].0, &wrong);
+    let agreement = landmark_agreement(&pairs);
+    let flagged = disagreeing_photos(&agreement);
+    assert_eq!(flagged.len(), 1, "one photo singled out: {agreement:?}");
+    assert_eq!(flagged[0].0, 3, "the wrong one: {agreement:?}");
+    assert!(
+        agreement[3] < 0.25 && agreement.iter().enumerate().all(|(k, &a)| k == 3 || a > 0.4),
+        "{agreement:?}"
+    );
+
+    // Two photos cannot say which of them is wrong: none is singled out.
+    assert!(disagreeing_photos(&agreement[2..4]).is_empty());
+}
