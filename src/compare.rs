@@ -170,6 +170,9 @@ pub struct CompareStats {
     pub point_to_surface: ErrorStats,
     /// The paper's measures.
     pub paper: PaperMeasures,
+    /// Truth → reconstruction over the truth's inner face ([`inner_face_score`]), when both
+    /// structures are given: the measure accuracy claims are made in.
+    pub inner_face: Option<InnerFaceScore>,
 }
 
 /// A finished comparison: the figures, both depth maps and the `|Δz|` map.
@@ -486,7 +489,14 @@ pub fn compare(
         None => (None, None),
     };
 
+    let inner_face = match structures {
+        Some(pair) => {
+            Some(inner_face_score(reconstruction, truth, pair, &InnerFaceOptions::default())?.score)
+        }
+        None => None,
+    };
     let stats = CompareStats {
+        inner_face,
         alignment,
         eye_distance,
         pixel_size: raster.spacing,

@@ -87,13 +87,18 @@ pub struct Scene {
     pub poses: Vec<[Real; 3]>,
     /// The subject's clipped surface mesh, canonical frame.
     pub truth_mesh: TriangleMesh,
-    /// The subject's 40-point structure, canonical frame.
+    /// The subject's 40-point structure as a landmarker places it (see [`scene`]), canonical
+    /// frame.
     pub truth_structure: Vec<Point3<Real>>,
 }
 
 /// Photographs the demo subject (see [`SceneOptions`]): poses spread over yaw ±40°, with pitch
 /// ±15° and roll ±8° at random; each photo's points are the projected structure plus Gaussian
 /// noise.
+///
+/// The structure is the subject's as a landmarker places it: its landmark vertices moved by
+/// the offsets between the default reference's photo structure and its landmark vertices
+/// ([`ReferenceFace::photo_structure`]), the same definitions the pipeline deforms from.
 ///
 /// # Errors
 /// A message for zero photos, a negative or non-finite noise, or a size under 64 pixels.
@@ -117,6 +122,13 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, String> {
         .mesh(&MeshOptions { spacing: 0.75 })
         .map_err(|e| e.to_string())?
         .mesh;
+    let reference = ReferenceFace::embedded();
+    let seen: Vec<Point3<Real>> = subject
+        .structure()
+        .iter()
+        .zip(reference.photo_structure().iter().zip(reference.structure()))
+        .map(|(p, (a, b))| p + (a - b))
+        .collect();
     let mut random = Random(options.seed);
     let mut inputs = Vec::with_capacity(options.photos);
     let mut poses = Vec::with_capacity(options.photos);
@@ -132,7 +144,7 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, String> {
             random.uniform(-8.0, 8.0),
         ];
         let view = View::from_yaw_pitch_roll_degrees(pose[0], pose[1], pose[2]);
-        let photo = synthetic_photo(&mesh, subject.structure(), &view, width, height, 0.1)?;
+        let photo = synthetic_photo(&mesh, &seen, &view, width, height, 0.1)?;
         let eyes = (photo.points[LEFT_EYE_CENTRE] - photo.points[RIGHT_EYE_CENTRE])
             .norm()
             .max(1.0);
@@ -170,7 +182,7 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, String> {
         inputs,
         poses,
         truth_mesh: mesh,
-        truth_structure: subject.structure().to_vec(),
+        truth_structure: seen,
     })
 }
 

@@ -530,6 +530,34 @@ fn compare(args: &CompareArgs) -> Result<()> {
         structures.as_ref().map(|(a, b)| (a.as_slice(), b.as_slice())),
         &args.options,
     )?;
+    // The unchanged mean face (the embedded reference, 63 mm between its eye centres), scored
+    // the same way: a reconstruction's figures mean little alone.
+    let mean_face = match &structures {
+        Some((_, truth_structure)) => {
+            let reference = ReferenceFace::embedded();
+            let units = splineface::face::Units::default();
+            let mesh =
+                splineface::face::FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?
+                    .mesh(&splineface::face::MeshOptions::default())?
+                    .mesh
+                    .transformed(&units.transform());
+            let points: Vec<_> = reference
+                .photo_structure()
+                .iter()
+                .map(|p| p * units.per_canonical_unit())
+                .collect();
+            Some(
+                splineface::compare::inner_face_score(
+                    &mesh,
+                    &truth,
+                    (&points, truth_structure),
+                    &splineface::compare::InnerFaceOptions::default(),
+                )?
+                .score,
+            )
+        }
+        None => None,
+    };
     let elapsed = start.elapsed();
     let (w, h) = (
         result.reconstruction.raster.width,
@@ -543,6 +571,7 @@ fn compare(args: &CompareArgs) -> Result<()> {
     stats["truth"] = args.truth.display().to_string().into();
     stats["units"] = "mm".into();
     stats["heatmap_max"] = result.heatmap_max.into();
+    stats["inner_face_mean_face"] = serde_json::to_value(mean_face)?;
     let files = vec![
         (
             args.out.join("heatmap.png"),
@@ -593,6 +622,17 @@ fn compare(args: &CompareArgs) -> Result<()> {
             .depth_correlation
             .map_or(String::new(), |v| format!(", depth r {v:.4}")),
     );
+    if let (Some(f), Some(m)) = (s.inner_face, mean_face) {
+        println!(
+            "  inner face mm  mean {:.3}, median {:.3}, 90% {:.3}, coverage {:.3}; the mean face: mean {:.3} ({:.2}× its error)",
+            f.distance.mean,
+            f.distance.median,
+            f.distance.p90,
+            f.coverage,
+            m.distance.mean,
+            f.distance.mean / m.distance.mean
+        );
+    }
     println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
     Ok(())
 }
@@ -1041,8 +1081,9 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     .mesh(&options.mesh)?
     .mesh
     .transformed(&to_units);
+    // Its landmarks as the photo path places them, like the reconstruction's and the truth's.
     let reference_structure: Vec<_> = ReferenceFace::embedded()
-        .structure()
+        .photo_structure()
         .iter()
         .map(|p| p * scale)
         .collect();
@@ -1104,7 +1145,17 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         photos
     );
     println!();
+    let inner = |s: &splineface::compare::CompareStats| {
+        s.inner_face
+            .map_or_else(|| "-".to_owned(), |f| format!("{:.3}", f.distance.mean))
+    };
     let rows: Vec<(String, String, String, &str)> = vec![
+        (
+            format!("inner face ({unit})"),
+            inner(s),
+            inner(b),
+            "truth → surface, similarity-aligned",
+        ),
         (
             format!("mean |Δz| ({unit})"),
             format!("{:.3}", s.depth_error.mean),

@@ -216,11 +216,23 @@ impl FrontalFrame {
 pub struct ReferenceFace {
     surface: BSplineSurface,
     structure: Vec<Point3<Real>>,
+    photo_structure: Option<PhotoStructure>,
     edges: Vec<[usize; 2]>,
     frame: FrontalFrame,
     clip: Vec<Point2<Real>>,
     fit: ReferenceFit,
     provenance: Provenance,
+}
+
+/// Where the photo path puts a landmarker's points on a reference face: the 40-point structure
+/// it estimates from photographs of the face itself (see [`ReferenceFace::photo_structure`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhotoStructure {
+    /// The 40 points, canonical frame.
+    pub points: Vec<Point3<Real>>,
+    /// How they were measured.
+    pub note: String,
 }
 
 /// What went wrong building or reading a reference.
@@ -453,6 +465,7 @@ pub fn build_reference(
     Ok(ReferenceFace {
         surface,
         structure: mean,
+        photo_structure: None,
         edges,
         frame,
         clip,
@@ -486,6 +499,51 @@ impl ReferenceFace {
     /// The reference 40-point structure `T₀`, in the canonical frame.
     pub fn structure(&self) -> &[Point3<Real>] {
         &self.structure
+    }
+
+    /// The structure the photo stages deform from: where a 68-point landmarker's points fall on
+    /// this face as the photo path estimates them, when the reference carries that
+    /// measurement, else [`ReferenceFace::structure`].
+    ///
+    /// A landmarker does not put its points where a scan's landmark vertices are: dlib's
+    /// mouth and nose points sit 2–5 units (canonical, 3–6 mm) below the ICT-FaceKit mean
+    /// face's landmark vertices, its brows higher, and the weak-perspective depth stage adds
+    /// a bias of its own. Deforming from the vertices would charge every face with those
+    /// offsets; deforming from what the photo path sees on the reference itself cancels them.
+    pub fn photo_structure(&self) -> &[Point3<Real>] {
+        self.photo_structure
+            .as_ref()
+            .map_or(&self.structure, |p| &p.points)
+    }
+
+    /// The measurement behind [`ReferenceFace::photo_structure`], if the reference has one.
+    pub fn photo_structure_measured(&self) -> Option<&PhotoStructure> {
+        self.photo_structure.as_ref()
+    }
+
+    /// This reference with `points` as its photo structure (or without one, for `None`).
+    ///
+    /// # Errors
+    /// A message when there are not 40 finite points.
+    pub fn with_photo_structure(mut self, photo: Option<PhotoStructure>) -> Result<Self, String> {
+        if let Some(p) = &photo {
+            check_points(&p.points, "photo structure")?;
+        }
+        self.photo_structure = photo;
+        Ok(self)
+    }
+
+    /// The reference the photo stages use: [`ReferenceFace::photo_structure`] as its structure
+    /// (a copy when the two differ).
+    pub fn as_seen_in_photos(&self) -> std::borrow::Cow<'_, ReferenceFace> {
+        match &self.photo_structure {
+            None => std::borrow::Cow::Borrowed(self),
+            Some(p) => std::borrow::Cow::Owned(ReferenceFace {
+                structure: p.points.clone(),
+                photo_structure: None,
+                ..self.clone()
+            }),
+        }
     }
 
     /// The structure's edges (Delaunay of its frontal positions), `i < j`.
@@ -533,7 +591,21 @@ impl ReferenceFace {
 }
 
 const FORMAT: &str = "splineface/reference";
-const VERSION: u32 = 1;
+/// Version 2 added the optional `photo_structure`; version 1 files still load.
+const VERSION: u32 = 2;
+
+fn check_points(points: &[Point3<Real>], what: &str) -> Result<(), String> {
+    if points.len() != POINT_COUNT {
+        return Err(format!(
+            "{what} has {} points, expected {POINT_COUNT}",
+            points.len()
+        ));
+    }
+    if let Some(k) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
+        return Err(format!("{what} point {k} is not finite"));
+    }
+    Ok(())
+}
 
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -542,6 +614,8 @@ struct RawReference {
     version: u32,
     surface: BSplineSurface,
     structure: Vec<Point3<Real>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    photo_structure: Option<PhotoStructure>,
     edges: Vec<[usize; 2]>,
     frame: FrontalFrame,
     clip: Vec<Point2<Real>>,
@@ -556,6 +630,7 @@ impl From<ReferenceFace> for RawReference {
             version: VERSION,
             surface: r.surface,
             structure: r.structure,
+            photo_structure: r.photo_structure,
             edges: r.edges,
             frame: r.frame,
             clip: r.clip,
@@ -571,24 +646,18 @@ impl TryFrom<RawReference> for ReferenceFace {
         if raw.format != FORMAT {
             return Err(format!("format is {:?}, expected {FORMAT:?}", raw.format));
         }
-        if raw.version != VERSION {
+        if !(1..=VERSION).contains(&raw.version) {
             return Err(format!(
-                "format version {} is not supported (this build reads version {VERSION})",
+                "format version {} is not supported (this build reads versions 1 to {VERSION})",
                 raw.version
             ));
         }
-        if raw.structure.len() != POINT_COUNT {
-            return Err(format!(
-                "structure has {} points, expected {POINT_COUNT}",
-                raw.structure.len()
-            ));
+        if raw.version < 2 && raw.photo_structure.is_some() {
+            return Err("photo_structure needs format version 2".to_owned());
         }
-        if let Some(k) = raw
-            .structure
-            .iter()
-            .position(|p| !p.iter().all(|c| c.is_finite()))
-        {
-            return Err(format!("structure point {k} is not finite"));
+        check_points(&raw.structure, "structure")?;
+        if let Some(p) = &raw.photo_structure {
+            check_points(&p.points, "photo_structure")?;
         }
         let mut seen = std::collections::HashSet::new();
         for &[i, j] in &raw.edges {
@@ -623,6 +692,7 @@ impl TryFrom<RawReference> for ReferenceFace {
         Ok(Self {
             surface: raw.surface,
             structure: raw.structure,
+            photo_structure: raw.photo_structure,
             edges: raw.edges,
             frame: raw.frame,
             clip: raw.clip,

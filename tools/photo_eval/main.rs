@@ -45,6 +45,7 @@ struct Args {
     counts: Vec<usize>,
     pool: usize,
     methods: Vec<String>,
+    calibrate: Option<PathBuf>,
     out: PathBuf,
     model: PathBuf,
     data: PathBuf,
@@ -60,6 +61,7 @@ fn parse_args() -> Result<Args> {
         counts: vec![2, 3, 4, 8, 16],
         pool: 24,
         methods: Vec::new(),
+        calibrate: None,
         out: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/target/photo-eval")),
         model: shared.join("models/shape_predictor_68_face_landmarks.dat"),
         data: shared.join("data/lps-head"),
@@ -80,6 +82,7 @@ fn parse_args() -> Result<Args> {
             }
             "--methods" => args.methods = value()?.split(',').map(|m| m.trim().to_owned()).collect(),
             "--out" => args.out = value()?.into(),
+            "--calibrate" => args.calibrate = Some(value()?.into()),
             "--model" => args.model = value()?.into(),
             "--data" => args.data = value()?.into(),
             "--ict" => args.ict = value()?.into(),
@@ -450,124 +453,193 @@ fn between(x: &Reconstruction, y: &Reconstruction, like: &Subject) -> Result<Rea
     Ok(score(&y.output_mesh(), &y.structure(), &as_truth)?.distance.mean)
 }
 
-/// The methods compared: the default first.
-fn methods(names: &[String]) -> Result<Vec<(String, PipelineOptions)>> {
+/// The reference's photo structure ([`ReferenceFace::photo_structure`]): the structure the
+/// photo path estimates for the reference's own face (the ICT-FaceKit mean face) wearing each
+/// `skin`, from three sets of eight photos each (yaw within ±45°), mean of the estimates after
+/// a similarity onto the reference's structure over the points off the contour.
+fn calibrate(
+    reference: &ReferenceFace,
+    ict: &Ict,
+    skins: &[&subjects::Skin],
+    landmarks: &mut Landmarks<'_>,
+    args: &Args,
+) -> Result<ReferenceFace> {
+    let plain = reference
+        .clone()
+        .with_photo_structure(None)
+        .map_err(anyhow::Error::msg)?;
+    let options = PipelineOptions::default();
+    let inner: Vec<usize> = (9..40).collect();
+    let pick = |ps: &[Point3<Real>]| inner.iter().map(|&k| ps[k]).collect::<Vec<_>>();
+    let mut estimates: Vec<Vec<Point3<Real>>> = Vec::new();
+    for (k, skin) in skins.iter().enumerate() {
+        let face = subjects::ict_face(ict, format!("mean-{}", skin.name), &[], skin)?;
+        let dir = photos::render_pool(
+            &face,
+            args.pool,
+            45.0,
+            11,
+            &args.out.join("pools").join(&face.name),
+        )?;
+        let pool = photos::read_set(&dir)?;
+        for seed in 0..3u64 {
+            let chosen = choose(args.pool, 8, 5000 + seed + 10 * k as u64);
+            let set = Set {
+                subject: 0,
+                label: format!("{} calibration set {seed}", face.name),
+                photos: chosen
+                    .iter()
+                    .map(|&i| (format!("{}/{}", face.name, pool[i].name), &pool[i]))
+                    .collect(),
+            };
+            match run_set(&set, &face, landmarks, &plain, &options)? {
+                (_, Some(result)) => {
+                    let est = &result.depth.structure;
+                    let (map, _) = splineface::compare::fit_similarity(&pick(est), &pick(plain.structure()))
+                        .context("a degenerate estimate")?;
+                    estimates.push(est.iter().map(|p| map * p).collect());
+                }
+                (outcome, None) => eprintln!("{}: {}", set.label, outcome.error.unwrap_or_default()),
+            }
+        }
+    }
+    if estimates.is_empty() {
+        bail!("no calibration set could be reconstructed");
+    }
+    let n = estimates.len() as Real;
+    let mean: Vec<Point3<Real>> = (0..40)
+        .map(|k| {
+            Point3::from(
+                estimates
+                    .iter()
+                    .map(|e| e[k].coords)
+                    .sum::<nalgebra::Vector3<Real>>()
+                    / n,
+            )
+        })
+        .collect();
+    let (_, points) = splineface::structure::unify(&mean)?;
+    let spread = (0..40)
+        .map(|k| {
+            estimates
+                .iter()
+                .map(|e| (e[k] - mean[k]).norm_squared())
+                .sum::<Real>()
+                / n
+        })
+        .sum::<Real>()
+        / 40.0;
+    let moved = points
+        .iter()
+        .zip(plain.structure())
+        .map(|(a, b)| (a - b).norm_squared())
+        .sum::<Real>()
+        / 40.0;
+    eprintln!(
+        "calibrated from {} estimates: RMS {:.2} units from the vertex structure, estimates spread {:.2} units RMS",
+        estimates.len(),
+        moved.sqrt(),
+        spread.sqrt()
+    );
+    let note = format!(
+        "Measured by `cargo run --release --example photo_eval -- --calibrate` (tools/photo_eval): the mean, after a \
+         similarity onto `structure` over the points off the contour, of the structures that the photo path \
+         (SeetaFace detection, dlib's 68-point model, RASL, depth with the default options) estimated from {} sets of \
+         8 photo-realistic renders (perspective camera 0.4-2 m away, yaw within 45 degrees, varied light) of the \
+         ICT-FaceKit mean face wearing {} real skins projected from the faces of dlib's bald_guys.jpg; the estimates \
+         spread {:.2} units RMS about their mean, which lies {:.2} units RMS from `structure`.",
+        estimates.len(),
+        skins.len(),
+        spread.sqrt(),
+        moved.sqrt()
+    );
+    plain
+        .with_photo_structure(Some(splineface::reference::PhotoStructure { points, note }))
+        .map_err(anyhow::Error::msg)
+}
+
+/// A way of running the pipeline: its options, and whether the reference's photo structure
+/// is ignored (deforming from its landmark vertices, as before the calibration).
+struct Method {
+    name: &'static str,
+    options: PipelineOptions,
+    vertex_structure: bool,
+}
+
+impl Method {
+    fn reference<'a>(&self, reference: &'a ReferenceFace) -> Result<std::borrow::Cow<'a, ReferenceFace>> {
+        Ok(if self.vertex_structure {
+            std::borrow::Cow::Owned(
+                reference
+                    .clone()
+                    .with_photo_structure(None)
+                    .map_err(anyhow::Error::msg)?,
+            )
+        } else {
+            std::borrow::Cow::Borrowed(reference)
+        })
+    }
+}
+
+/// The methods compared: the default first, then one change from it each.
+fn methods(names: &[String]) -> Result<Vec<Method>> {
+    use splineface::pipeline::StructureWeight;
     let default = PipelineOptions::default();
-    let with_depth = |f: &dyn Fn(&mut splineface::depth::DepthOptions)| {
+    let with = |f: &dyn Fn(&mut PipelineOptions)| {
         let mut o = default;
-        f(&mut o.depth);
+        f(&mut o);
         o
     };
-    let all: Vec<(&str, PipelineOptions)> = vec![
-        ("default", default),
-        ("contour 1", with_depth(&|d| d.contour_weight = 1.0)),
-        ("contour 0.1", with_depth(&|d| d.contour_weight = 0.1)),
-        ("cal c0.1", with_depth(&|d| d.contour_weight = 0.1)),
-        (
-            "cal c0.1 a0.5",
-            PipelineOptions {
-                structure_weight: 0.5,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
+    let method = |name, options| Method {
+        name,
+        options,
+        vertex_structure: false,
+    };
+    let all = vec![
+        method("default", default),
+        Method {
+            vertex_structure: true,
+            ..method("vertex structure", default)
+        },
+        method(
+            "weight 1",
+            with(&|o| o.structure_weight = StructureWeight::Fixed(1.0)),
         ),
-        (
-            "cal c0.1 a0.25",
-            PipelineOptions {
-                structure_weight: 0.25,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
+        method(
+            "weight 0.5",
+            with(&|o| o.structure_weight = StructureWeight::Fixed(0.5)),
         ),
-        (
-            "cal c0.1 a0.75",
-            PipelineOptions {
-                structure_weight: 0.75,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
+        method(
+            "weight 0.25",
+            with(&|o| o.structure_weight = StructureWeight::Fixed(0.25)),
         ),
-        (
-            "cal c0 a0.5",
-            PipelineOptions {
-                structure_weight: 0.5,
-                ..with_depth(&|d| d.contour_weight = 0.0)
-            },
-        ),
-        (
-            "cal c0.3 a0.5",
-            PipelineOptions {
-                structure_weight: 0.5,
-                ..with_depth(&|d| d.contour_weight = 0.3)
-            },
-        ),
-        (
-            "c0.1 a0",
-            PipelineOptions {
-                structure_weight: 0.0,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "c0.1 a0.25",
-            PipelineOptions {
-                structure_weight: 0.25,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "c0.1 a0.5",
-            PipelineOptions {
-                structure_weight: 0.5,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "c0.1 a0.75",
-            PipelineOptions {
-                structure_weight: 0.75,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "c0.1 a0.5 affine",
-            PipelineOptions {
-                structure_weight: 0.5,
-                deformation: Deformation::Affine,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "c0.1 affine",
-            PipelineOptions {
-                deformation: Deformation::Affine,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
-        (
-            "contour 1 all",
-            PipelineOptions {
-                drop_disagreeing: false,
-                ..with_depth(&|d| d.contour_weight = 1.0)
-            },
-        ),
-        (
-            "contour 0.1 all",
-            PipelineOptions {
-                drop_disagreeing: false,
-                ..with_depth(&|d| d.contour_weight = 0.1)
-            },
-        ),
+        method("contour 1", with(&|o| o.depth.contour_weight = 1.0)),
+        method("all photos", with(&|o| o.drop_disagreeing = false)),
+        method("affine", with(&|o| o.deformation = Deformation::Affine)),
+        Method {
+            vertex_structure: true,
+            ..method(
+                "issue-16 start",
+                with(&|o| {
+                    o.structure_weight = StructureWeight::Fixed(1.0);
+                    o.depth.contour_weight = 1.0;
+                    o.drop_disagreeing = false;
+                }),
+            )
+        },
     ];
     if names.is_empty() {
-        return Ok(all.into_iter().take(1).map(|(n, o)| (n.to_owned(), o)).collect());
+        return Ok(all.into_iter().take(1).collect());
     }
-    names
-        .iter()
-        .map(|n| {
-            all.iter()
-                .find(|(m, _)| m == n)
-                .map(|(m, o)| (m.to_string(), *o))
-                .with_context(|| format!("no method `{n}`"))
-        })
-        .collect()
+    let mut chosen = Vec::new();
+    for n in names {
+        let at = all
+            .iter()
+            .position(|m| m.name == n)
+            .with_context(|| format!("no method `{n}`"))?;
+        chosen.push(Method { ..all[at] });
+    }
+    Ok(chosen)
 }
 
 fn mean_of(values: impl Iterator<Item = Real>) -> Real {
@@ -653,122 +725,20 @@ fn main() -> Result<()> {
         .map(|s| score(&mean_face.mesh, &mean_face.structure, s))
         .collect::<Result<_>>()?;
     let methods = methods(&args.methods)?;
-    // The reference structure as the photo path sees the reference face itself.
-    let calibrated = if std::env::var("CALIBRATE").is_ok() {
-        let mut estimates: Vec<Vec<Point3<Real>>> = Vec::new();
-        let mut options = PipelineOptions::default();
-        options.depth.contour_weight = 0.1;
-        for (k, skin) in skins.iter().enumerate() {
-            let face = subjects::ict_face(&ict, format!("mean-{}", skin.name), &[], skin)?;
-            let dir = photos::render_pool(
-                &face,
-                args.pool,
-                45.0,
-                11,
-                &args.out.join("pools").join(&face.name),
-            )?;
-            let pool = photos::read_set(&dir)?;
-            for seed in 0..3u64 {
-                let chosen = choose(args.pool, 8, 5000 + seed + 10 * k as u64);
-                let set = Set {
-                    subject: 0,
-                    label: String::new(),
-                    photos: chosen
-                        .iter()
-                        .map(|&i| (format!("{}/{}", face.name, pool[i].name), &pool[i]))
-                        .collect(),
-                };
-                if let (_, Some(result)) = run_set(&set, &face, &mut landmarks, reference, &options)? {
-                    let inner: Vec<usize> = (9..40).collect();
-                    let pick = |ps: &[Point3<Real>]| inner.iter().map(|&k| ps[k]).collect::<Vec<_>>();
-                    let est = &result.depth.structure;
-                    let (map, _) =
-                        splineface::compare::fit_similarity(&pick(est), &pick(reference.structure()))
-                            .context("similarity")?;
-                    estimates.push(est.iter().map(|p| map * p).collect());
-                }
-            }
-        }
-        let n = estimates.len() as Real;
-        let mean: Vec<Point3<Real>> = (0..40)
-            .map(|k| {
-                Point3::from(
-                    estimates
-                        .iter()
-                        .map(|e| e[k].coords)
-                        .sum::<nalgebra::Vector3<Real>>()
-                        / n,
-                )
-            })
-            .collect();
-        let (_, unified) = splineface::structure::unify(&mean)?;
-        let shift: Vec<String> = unified
-            .iter()
-            .zip(reference.structure())
-            .map(|(a, b)| {
-                let d = a - b;
-                format!("({:.1} {:.1} {:.1})", d.x, d.y, d.z)
-            })
-            .collect();
-        eprintln!(
-            "calibrated from {} estimates; moved points by {}",
-            estimates.len(),
-            shift.join(" ")
-        );
-        let spread: Vec<String> = (0..40)
-            .map(|k| {
-                let m = mean[k];
-                let v = estimates.iter().map(|e| (e[k] - m).norm_squared()).sum::<Real>() / n;
-                format!("{:.1}", v.sqrt())
-            })
-            .collect();
-        eprintln!("spread of the estimates per point: {}", spread.join(" "));
-        let mut json: serde_json::Value = serde_json::from_str(&reference.to_json())?;
-        json["structure"] =
-            serde_json::to_value(unified.iter().map(|p| [p.x, p.y, p.z]).collect::<Vec<_>>())?;
-        Some(ReferenceFace::from_json(&json.to_string())?)
-    } else {
-        None
-    };
-    if std::env::var("ORACLE").is_ok() {
-        // The reference deformed to each subject's true structure: the most the structure can give.
-        let units = Units::default();
-        for (s, subject) in subjects.iter().enumerate() {
-            let canonical: Vec<Point3<Real>> = {
-                let (_, unified) = splineface::structure::unify(&subject.structure)?;
-                unified
-            };
-            let mut line = format!(
-                "oracle {}: mean face {:.2}",
-                subject.name, baselines[s].distance.mean
-            );
-            for (label, deformation) in [("affine", Deformation::Affine), ("local", Deformation::default())] {
-                for alpha in [0.5, 1.0] {
-                    let target = splineface::face::shrunk_toward_reference(reference, &canonical, alpha)?;
-                    let face = FaceSurface::deform(reference, &target, deformation)?;
-                    let mesh = face
-                        .mesh(&MeshOptions::default())?
-                        .mesh
-                        .transformed(&units.transform());
-                    let structure: Vec<Point3<Real>> =
-                        target.iter().map(|p| p * units.per_canonical_unit()).collect();
-                    let r = score(&mesh, &structure, subject)?.distance.mean / baselines[s].distance.mean;
-                    line += &format!(", {label} α {alpha} {r:.2}");
-                }
-            }
-            eprintln!("{line}");
-        }
+    if let Some(path) = &args.calibrate {
+        // Skins from the collage only: the scan's own skin stays for the evaluation.
+        let collage: Vec<&subjects::Skin> = skins.iter().filter(|s| s.name.starts_with("collage")).collect();
+        let calibrated = calibrate(reference, &ict, &collage, &mut landmarks, &args)?;
+        std::fs::write(path, calibrated.to_json())?;
+        eprintln!("wrote {}", path.display());
+        return Ok(());
     }
-
     // Every method on every set.
     let mut results: Vec<Vec<Outcome>> = Vec::new();
-    for (name, options) in &methods {
+    for method in &methods {
+        let (name, options) = (method.name, &method.options);
         let mut outcomes = Vec::new();
-        let chosen_reference = if name.contains("cal") {
-            calibrated.as_ref().context("CALIBRATE=1 for cal methods")?
-        } else {
-            reference
-        };
+        let chosen_reference = &*method.reference(reference)?;
         for set in &sets {
             let (outcome, _) = run_set(
                 set,
@@ -813,7 +783,7 @@ fn main() -> Result<()> {
     }
     writeln!(page, " failed |")?;
     writeln!(page, "|---|{}---|", "---|".repeat(counts.len()))?;
-    for ((name, _), outcomes) in methods.iter().zip(&results) {
+    for (Method { name, .. }, outcomes) in methods.iter().zip(&results) {
         write!(page, "| {name} |")?;
         for &c in &counts {
             let of: Vec<Real> = sets
@@ -837,9 +807,9 @@ fn main() -> Result<()> {
         )?;
     }
 
-    writeln!(page, "\n## Every set, {}\n", methods[0].0)?;
+    writeln!(page, "\n## Every set, {}\n", methods[0].name)?;
     write!(page, "| set | photos used | undetected | mean face |")?;
-    for (name, _) in &methods {
+    for Method { name, .. } in &methods {
         write!(page, " {name} |")?;
     }
     writeln!(page)?;
@@ -871,7 +841,7 @@ fn main() -> Result<()> {
         "\n## Self-consistency: two disjoint halves of 16 photos, symmetric mean distance (mm)\n"
     )?;
     write!(page, "| subject |")?;
-    for (name, _) in &methods {
+    for Method { name, .. } in &methods {
         write!(page, " {name} |")?;
     }
     writeln!(page)?;
@@ -890,9 +860,10 @@ fn main() -> Result<()> {
             })
             .collect();
         write!(page, "| {} |", subject.name)?;
-        for (_, options) in &methods {
-            let a = run_set(&halves[0], subject, &mut landmarks, reference, options)?.1;
-            let b = run_set(&halves[1], subject, &mut landmarks, reference, options)?.1;
+        for method in &methods {
+            let chosen = &*method.reference(reference)?;
+            let a = run_set(&halves[0], subject, &mut landmarks, chosen, &method.options)?.1;
+            let b = run_set(&halves[1], subject, &mut landmarks, chosen, &method.options)?.1;
             match (a, b) {
                 (Some(a), Some(b)) => {
                     let (ab, ba) = (between(&a, &b, subject)?, between(&b, &a, subject)?);
