@@ -46,7 +46,7 @@ fn patch(image: &GreyImage, centre: Point2<Real>, axis: Vector2<Real>, step: Rea
     let mean = values.iter().sum::<Real>() / values.len() as Real;
     values.iter_mut().for_each(|v| *v -= mean);
     let norm = values.iter().map(|v| v * v).sum::<Real>().sqrt();
-    if !(norm > 1e-6) {
+    if norm.is_nan() || norm <= 1e-6 {
         return None;
     }
     values.iter_mut().for_each(|v| *v /= norm);

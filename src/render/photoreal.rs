@@ -40,21 +40,19 @@ pub struct Camera {
 }
 
 impl Camera {
-    /// A camera looking at a head posed by `yaw, pitch, roll` (degrees, as
-    /// [`crate::depth::Pose`] defines them for a face whose frame has `+y` up and `+z` toward a
-    /// frontal viewer) from `distance` along its axis, with `target` (a point of the head's
-    /// frame, say the middle of the face) on the optical axis: `R = diag(1, −1, −1) R_head`,
-    /// `t = (0, 0, distance) − R · target`.
+    /// A `width × height` camera of focal length `focal` (pixels) looking at a head posed by
+    /// `[yaw, pitch, roll]` (degrees, as [`crate::depth::Pose`] defines them for a face whose
+    /// frame has `+y` up and `+z` toward a frontal viewer) from `distance` along its axis, with
+    /// `target` (a point of the head's frame, say the middle of the face) on the optical axis:
+    /// `R = diag(1, −1, −1) R_head`, `t = (0, 0, distance) − R · target`.
     pub fn looking_at_head(
-        yaw: Real,
-        pitch: Real,
-        roll: Real,
+        yaw_pitch_roll: [Real; 3],
         target: &Point3<Real>,
         distance: Real,
         focal: Real,
-        width: usize,
-        height: usize,
+        (width, height): (usize, usize),
     ) -> Self {
+        let [yaw, pitch, roll] = yaw_pitch_roll;
         let head = crate::depth::Pose::from_yaw_pitch_roll_degrees(yaw, pitch, roll, 1.0).rotation;
         let flip = Rotation3::from_matrix_unchecked(Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0)));
         let rotation = flip * head;
@@ -283,7 +281,7 @@ impl ShadowMap {
                 } else {
                     Real::NAN
                 };
-                if !(blocker > q.z + self.bias) {
+                if blocker.is_nan() || blocker <= q.z + self.bias {
                     lit += 1;
                 }
             }

@@ -151,7 +151,7 @@ const CORPUS: &[(&str, Kind, &str)] = &[
     (
         "future-reference.json",
         Reference,
-        "format version 99 is not supported (this build reads version 1)",
+        "format version 99 is not supported (this build reads versions 1 to 2)",
     ),
     ("empty-surface.json", Surface, "the file is empty"),
     (

@@ -1,11 +1,17 @@
 //! The photo-realistic renderer against closed forms, and the landmark patch agreement on
 //! photos it renders.
 
-use nalgebra::{Point2, Point3, Vector3};
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Affine3, Point2, Point3, Vector3};
 use splineface::Real;
 use splineface::align::{GreyImage, PhotoPoints, disagreeing_photos, landmark_agreement};
-use splineface::face::{Deformation, FaceSurface, MeshOptions};
-use splineface::mesh::{TextureCoordinates, TriangleMesh};
+use splineface::compare::{InnerFaceOptions, fit_similarity, inner_face_score};
+use splineface::face::{Deformation, FaceSurface, MeshOptions, Units};
+use splineface::landmarker::ShapePredictor;
+use splineface::mesh::{TextureCoordinates, TriangleMesh, read_mesh};
+use splineface::pipeline::{Input, PhotoImage, PipelineOptions, reconstruct};
+use splineface::reference::ReferenceFace;
 use splineface::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
 
 use crate::common::Lcg;
@@ -65,7 +71,7 @@ fn a_frontal_square_shows_its_texture_where_the_camera_projects_it() {
             image::Rgb([0, 0, bright])
         }
     });
-    let camera = Camera::looking_at_head(0.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    let camera = Camera::looking_at_head([0.0; 3], &Point3::origin(), 10.0, 200.0, (101, 101));
     let image = render_photo(&square(), &ColourMap::new(&map), &camera, &ambient(), &plain()).unwrap();
     // The square spans ±200·1/10 = ±20 pixels about the centre (50, 50).
     assert_eq!(
@@ -84,7 +90,7 @@ fn a_frontal_square_shows_its_texture_where_the_camera_projects_it() {
 #[test]
 fn lambert_shading_follows_the_light_and_a_blocker_casts_a_shadow() {
     let white = ColourMap::new(&image::RgbImage::from_pixel(4, 4, image::Rgb([255, 255, 255])));
-    let camera = Camera::looking_at_head(0.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    let camera = Camera::looking_at_head([0.0; 3], &Point3::origin(), 10.0, 200.0, (101, 101));
     let tilted = Lighting {
         direction: Vector3::new(0.0, 0.0, 1.0),
         diffuse: 0.5,
@@ -118,7 +124,7 @@ fn lambert_shading_follows_the_light_and_a_blocker_casts_a_shadow() {
         .with_texture(TextureCoordinates { uvs, triangles })
         .unwrap();
     // Seen from the side so that the blocker does not hide the shadow from the camera.
-    let side = Camera::looking_at_head(30.0, 0.0, 0.0, &Point3::origin(), 10.0, 200.0, 101, 101);
+    let side = Camera::looking_at_head([30.0, 0.0, 0.0], &Point3::origin(), 10.0, 200.0, (101, 101));
     // The light's direction is given in the camera's viewing frame: the world's +z seen from
     // the side camera is (sin 30°, 0, cos 30°) there.
     let overhead = Lighting {
@@ -191,7 +197,7 @@ fn photos_whose_landmarks_mark_other_places_are_singled_out() {
     let target = Point3::new(0.0, -20.0, 0.0);
     let mut photos: Vec<(GreyImage, PhotoPoints)> = Vec::new();
     for (k, yaw) in [-30.0, -12.0, 0.0, 15.0, 28.0].into_iter().enumerate() {
-        let camera = Camera::looking_at_head(yaw, 5.0, 0.0, &target, 600.0, 1600.0, 240, 300);
+        let camera = Camera::looking_at_head([yaw, 5.0, 0.0], &target, 600.0, 1600.0, (240, 300));
         let image = render_photo(
             &mesh,
             &colour,
@@ -241,4 +247,177 @@ fn photos_whose_landmarks_mark_other_places_are_singled_out() {
 
     // Two photos cannot say which of them is wrong: none is singled out.
     assert!(disagreeing_photos(&agreement[2..4]).is_empty());
+}
+
+/// The model and data the whole photo path needs (not part of the repository).
+fn shared() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared")
+}
+
+/// The demo subject wearing a real skin: Lee Perry-Smith's scan (`../shared/data/lps-head`, CC
+/// BY 3.0) photographed from the front by the renderer, landmarked, and mapped onto the
+/// subject's frontal parametrisation by the affine map between their structures' points off
+/// the contour. Millimetres (63 mm between the eye centres).
+fn demo_subject_with_a_real_skin(model: &ShapePredictor) -> (TriangleMesh, ColourMap, Vec<Point3<Real>>) {
+    let lps = shared().join("data/lps-head");
+    let scan = read_mesh(&lps.join("scan/LeePerrySmith.glb")).unwrap();
+    let truth = read_mesh(&lps.join("truth/mesh.obj")).unwrap();
+    let (onto_truth, _) = fit_similarity(scan.positions(), truth.positions()).unwrap();
+    let scan = scan.transformed(&Affine3::from_matrix_unchecked(onto_truth.to_homogeneous()));
+    // The file's texture coordinates suit a map loaded with its rows flipped (see tools/photo_eval).
+    let mut uv = scan.texture().unwrap().clone();
+    uv.uvs.iter_mut().for_each(|p| p.y = 1.0 - p.y);
+    let scan = scan.with_texture(uv).unwrap();
+    let skin = ColourMap::new(&image::open(lps.join("scan/Map-COL.jpg")).unwrap().to_rgb8());
+    let front = Camera::looking_at_head(
+        [0.0; 3],
+        &Point3::new(0.0, -30.0, 20.0),
+        650.0,
+        2200.0,
+        (800, 1000),
+    );
+    let even = Lighting {
+        direction: Vector3::new(0.0, 0.2, 1.0),
+        diffuse: 0.55,
+        ambient: 0.45,
+        ..Lighting::default()
+    };
+    let photo = render_photo(
+        &scan,
+        &skin,
+        &front,
+        &even,
+        &PhotoLook {
+            noise: 0.0,
+            blur: 0.0,
+            ..PhotoLook::default()
+        },
+    )
+    .unwrap();
+    let found =
+        splineface::detect::landmark_subject(model, &image::DynamicImage::ImageRgb8(photo.clone())).unwrap();
+    let points = splineface::structure::from_ibug68(&found.ibug).unwrap();
+
+    let subject = splineface::demo::subject();
+    let face = FaceSurface::deform(subject, subject.structure(), Deformation::Affine).unwrap();
+    let clipped = face.mesh(&MeshOptions { spacing: 0.6 }).unwrap();
+    // Frontal (x, y) → photo pixel: least squares over the points off the contour.
+    let structure = subject.structure();
+    let mut normal = nalgebra::Matrix3::<Real>::zeros();
+    let mut rhs = nalgebra::Matrix3x2::<Real>::zeros();
+    for k in 9..40 {
+        let a = Vector3::new(structure[k].x, structure[k].y, 1.0);
+        normal += a * a.transpose();
+        rhs += a * nalgebra::RowVector2::new(points[k].x, points[k].y);
+    }
+    let map = normal.cholesky().unwrap().solve(&rhs);
+    let size = 512u32;
+    let frame = *face.frame();
+    let texture = image::RgbImage::from_fn(size, size, |x, y| {
+        let (u, v) = (
+            (x as Real + 0.5) / size as Real,
+            1.0 - (y as Real + 0.5) / size as Real,
+        );
+        let p = frame.position(u, v);
+        let q = nalgebra::RowVector3::new(p.x, p.y, 1.0) * map;
+        let (px, py) = (q[0].clamp(0.0, 799.0) as u32, q[1].clamp(0.0, 999.0) as u32);
+        *photo.get_pixel(px, py)
+    });
+    let mm = 63.0 / 50.0;
+    let mesh = clipped
+        .mesh
+        .with_texture(TextureCoordinates {
+            uvs: clipped.params.clone(),
+            triangles: face
+                .mesh(&MeshOptions { spacing: 0.6 })
+                .unwrap()
+                .mesh
+                .triangles()
+                .to_vec(),
+        })
+        .unwrap()
+        .transformed(&Affine3::from_matrix_unchecked(nalgebra::Matrix4::new_scaling(
+            mm,
+        )));
+    (
+        mesh,
+        ColourMap::new(&texture),
+        structure.iter().map(|p| p * mm).collect(),
+    )
+}
+
+#[test]
+#[ignore = "needs ../shared (dlib's model and the lps-head scan)"]
+fn the_whole_photo_path_beats_the_mean_face_on_rendered_photos() {
+    let model = ShapePredictor::read(&shared().join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
+    let (mesh, colour, structure) = demo_subject_with_a_real_skin(&model);
+    // Eight photos: yaw ±35°, perspective at 0.5–0.8 m, light from varied sides.
+    let mut rng = Lcg(16);
+    let mut inputs = Vec::new();
+    for k in 0..8 {
+        let yaw = -35.0 + 10.0 * k as Real + rng.uniform(-3.0, 3.0);
+        let distance = rng.uniform(500.0, 800.0);
+        let camera = Camera::looking_at_head(
+            [yaw, rng.uniform(-10.0, 10.0), rng.uniform(-5.0, 5.0)],
+            &Point3::new(0.0, -25.0, 20.0),
+            distance,
+            distance * 2.4,
+            (640, 800),
+        );
+        let lighting = Lighting {
+            direction: Vector3::new(rng.uniform(-0.8, 0.8), rng.uniform(0.0, 0.8), 1.0),
+            ..Lighting::default()
+        };
+        let image = render_photo(
+            &mesh,
+            &colour,
+            &camera,
+            &lighting,
+            &PhotoLook {
+                seed: k,
+                ..PhotoLook::default()
+            },
+        )
+        .unwrap();
+        let image = image::DynamicImage::ImageRgb8(image);
+        let found = splineface::detect::landmark_subject(&model, &image).unwrap();
+        inputs.push(Input {
+            points: PhotoPoints::from_ibug68(format!("photo{k}"), &found.ibug).unwrap(),
+            image: Some(PhotoImage::from_dynamic(&image).unwrap()),
+        });
+    }
+    let reference = ReferenceFace::embedded();
+    let result = reconstruct(&inputs, reference, &PipelineOptions::default(), |_| {}).unwrap();
+    let truth = mesh.clone();
+    let score = |mesh: &TriangleMesh, points: &[Point3<Real>]| {
+        inner_face_score(mesh, &truth, (points, &structure), &InnerFaceOptions::default())
+            .unwrap()
+            .score
+            .distance
+            .mean
+    };
+    let units = Units::default();
+    let mean_face = FaceSurface::deform(reference, reference.structure(), Deformation::Affine)
+        .unwrap()
+        .mesh(&MeshOptions::default())
+        .unwrap()
+        .mesh
+        .transformed(&units.transform());
+    let mean_points: Vec<Point3<Real>> = reference
+        .photo_structure()
+        .iter()
+        .map(|p| p * units.per_canonical_unit())
+        .collect();
+    let (ours, mean) = (
+        score(&result.output_mesh(), &result.structure()),
+        score(&mean_face, &mean_points),
+    );
+    eprintln!(
+        "inner face: reconstruction {ours:.3} mm, mean face {mean:.3} mm ({:.2}×)",
+        ours / mean
+    );
+    assert!(
+        ours < 0.95 * mean,
+        "reconstruction {ours:.3} mm against the mean face's {mean:.3} mm"
+    );
 }

@@ -107,6 +107,49 @@ fn reference_json_round_trip_is_exact() {
 }
 
 #[test]
+fn the_photo_structure_is_what_the_photo_stages_deform_from() {
+    let reference = ReferenceFace::embedded();
+    let measured = reference
+        .photo_structure_measured()
+        .expect("the default carries one");
+    assert_eq!(reference.photo_structure(), measured.points.as_slice());
+    assert!(measured.note.contains("photo_eval"));
+    // It is unified like the structure (eye centres at (±25, 0, 0)) and differs from it.
+    let p = reference.photo_structure();
+    assert!((p[RIGHT_EYE_CENTRE] - Point3::new(-25.0, 0.0, 0.0)).norm() < 1e-9);
+    assert!((p[LEFT_EYE_CENTRE] - Point3::new(25.0, 0.0, 0.0)).norm() < 1e-9);
+    assert!(
+        p.iter()
+            .zip(reference.structure())
+            .any(|(a, b)| (a - b).norm() > 1.0)
+    );
+    // The photo stages' reference: its structure is the photo structure, the rest unchanged.
+    let seen = reference.as_seen_in_photos();
+    assert_eq!(seen.structure(), reference.photo_structure());
+    assert_eq!(seen.surface(), reference.surface());
+    assert_eq!(seen.clip(), reference.clip());
+    // Without one, the photo structure is the structure, and a version 1 file reads back.
+    let plain = reference.clone().with_photo_structure(None).unwrap();
+    assert_eq!(plain.photo_structure(), plain.structure());
+    assert!(matches!(plain.as_seen_in_photos(), std::borrow::Cow::Borrowed(_)));
+    let mut old: serde_json::Value = serde_json::from_str(&plain.to_json()).unwrap();
+    old["version"] = 1.into();
+    assert_eq!(ReferenceFace::from_json(&old.to_string()).unwrap(), plain);
+    // A bad photo structure is refused.
+    let short = splineface::reference::PhotoStructure {
+        points: p[..39].to_vec(),
+        note: String::new(),
+    };
+    assert!(
+        reference
+            .clone()
+            .with_photo_structure(Some(short))
+            .unwrap_err()
+            .contains("39 points")
+    );
+}
+
+#[test]
 fn malformed_references_are_refused() {
     let text = ReferenceFace::embedded().to_json();
     let mut value: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -134,6 +177,20 @@ fn malformed_references_are_refused() {
             "frame is not a finite box",
         ),
         (Box::new(|v| v["extra"] = 1.into()), "unknown field `extra`"),
+        (
+            Box::new(|v| {
+                v["photo_structure"]["points"].as_array_mut().unwrap().pop();
+            }),
+            "photo_structure has 39 points",
+        ),
+        (
+            Box::new(|v| v["photo_structure"]["points"][3] = serde_json::json!([1.0, "x", 2.0])),
+            "invalid type",
+        ),
+        (
+            Box::new(|v| v["version"] = 1.into()),
+            "photo_structure needs format version 2",
+        ),
     ];
     for (edit, expected) in cases {
         let original = value.clone();

@@ -388,7 +388,7 @@ fn skin_sources(
     model: &ShapePredictor,
 ) -> Result<Vec<(String, image::RgbImage)>> {
     use splineface::render::{Camera, Lighting, PhotoLook, render_photo};
-    let camera = Camera::looking_at_head(0.0, 0.0, 0.0, &lps.target, 650.0, 2200.0, 800, 1000);
+    let camera = Camera::looking_at_head([0.0; 3], &lps.target, 650.0, 2200.0, (800, 1000));
     let even = Lighting {
         direction: nalgebra::Vector3::new(0.0, 0.2, 1.0),
         diffuse: 0.55,

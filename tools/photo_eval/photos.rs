@@ -21,8 +21,6 @@ pub struct Photo {
     pub ypr: [Real; 3],
     /// The truth's 68 landmarks projected (no occlusion test).
     pub projected: Vec<Point2<Real>>,
-    /// The camera's distance to the face, mm.
-    pub distance: Real,
 }
 
 /// Reads a set made in the `lps-head` layout.
@@ -52,7 +50,6 @@ pub fn read_set(dir: &Path) -> Result<Vec<Photo>> {
             image,
             ypr: [number(&a[0])?, number(&a[1])?, number(&a[2])?],
             projected,
-            distance: number(&p["distance_mm"]).unwrap_or(Real::NAN),
         });
     }
     Ok(photos)
@@ -134,17 +131,8 @@ pub fn render_pool(subject: &Subject, count: usize, max_yaw: Real, seed: u64, di
     for k in 0..count {
         let shot = draw_shot(&mut rng, max_yaw, seed.wrapping_add(k as u64));
         let focal = shot.face_fraction * width as Real * shot.distance / face_width;
-        let [yaw, pitch, roll] = shot.ypr;
-        let camera = Camera::looking_at_head(
-            yaw,
-            pitch,
-            roll,
-            &subject.target,
-            shot.distance,
-            focal,
-            width,
-            height,
-        );
+        let camera =
+            Camera::looking_at_head(shot.ypr, &subject.target, shot.distance, focal, (width, height));
         let image = render_photo(
             &subject.mesh,
             &subject.colour,

@@ -444,7 +444,7 @@ pub fn ict_subject(ict: &Ict, index: usize, seed: u64, skin: &Skin) -> Result<Su
 
 /// The ICT face with identity weights `weights` in millimetres, wearing `skin`.
 pub fn ict_face(ict: &Ict, name: String, weights: &[Real], skin: &Skin) -> Result<Subject> {
-    let positions: Vec<Point3<Real>> = ict.positions(&weights).iter().map(|p| p * 10.0).collect();
+    let positions: Vec<Point3<Real>> = ict.positions(weights).iter().map(|p| p * 10.0).collect();
     let truth = TriangleMesh::new(positions, ict.neutral.triangles().to_vec())?;
     let textured = truth
         .clone()
