@@ -365,6 +365,115 @@ fn diagnose(result: &Reconstruction, set: &Set<'_>, subject: &Subject) {
     eprintln!("{line}; yaw/pitch errors {}", yaw_errors.join(" "));
 }
 
+/// The pictures of one set: its photos with their points (a photo left out framed in red), and
+/// the inner-face distance maps of the reconstruction and the mean face on one scale.
+#[allow(clippy::too_many_arguments)]
+fn pictures(
+    set: &Set<'_>,
+    subject: &Subject,
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+    mean_face: &MeanFace,
+    out: &Path,
+    page: &mut String,
+) -> Result<()> {
+    let (_, result) = run_set(set, subject, landmarks, reference, options)?;
+    let Some(result) = result else {
+        return Ok(());
+    };
+    let stem = set
+        .label
+        .split_whitespace()
+        .next()
+        .unwrap_or("set")
+        .replace('/', "-");
+    // The photos, 200 pixels wide, in two rows.
+    let tile = 200u32;
+    let columns = set.photos.len().div_ceil(2).max(1) as u32;
+    let mut sheet = image::RgbImage::new(columns * tile, 2 * tile * 5 / 4);
+    for (k, (key, photo)) in set.photos.iter().enumerate() {
+        let mut rgb = photo.image.to_rgb8();
+        let scale = tile as Real / rgb.width() as Real;
+        if let Some(points) = landmarks.of(key, photo) {
+            for q in &points {
+                let (x, y) = (q.x.round() as i64, q.y.round() as i64);
+                for dy in -3..=3i64 {
+                    for dx in -3..=3i64 {
+                        let (px, py) = (x + dx, y + dy);
+                        if px >= 0 && py >= 0 && (px as u32) < rgb.width() && (py as u32) < rgb.height() {
+                            rgb.put_pixel(px as u32, py as u32, image::Rgb([40, 255, 40]));
+                        }
+                    }
+                }
+            }
+        }
+        let small = image::imageops::resize(
+            &rgb,
+            tile,
+            (rgb.height() as Real * scale) as u32,
+            image::imageops::FilterType::Triangle,
+        );
+        let dropped = result.dropped.iter().any(|d| d.name == photo.name);
+        let (x0, y0) = ((k as u32 % columns) * tile, (k as u32 / columns) * tile * 5 / 4);
+        image::imageops::overlay(&mut sheet, &small, i64::from(x0), i64::from(y0));
+        if dropped {
+            for t in 0..4 {
+                for x in x0..x0 + tile {
+                    sheet.put_pixel(x, y0 + t, image::Rgb([255, 0, 0]));
+                    sheet.put_pixel(x, y0 + small.height() - 1 - t, image::Rgb([255, 0, 0]));
+                }
+                for y in y0..y0 + small.height() {
+                    sheet.put_pixel(x0 + t, y, image::Rgb([255, 0, 0]));
+                    sheet.put_pixel(x0 + tile - 1 - t, y, image::Rgb([255, 0, 0]));
+                }
+            }
+        }
+    }
+    let points_file = format!("{stem}-points.png");
+    sheet.save(out.join(&points_file))?;
+    let maximum = 5.0;
+    let mut names = Vec::new();
+    for (what, mesh, structure) in [
+        ("reconstruction", result.output_mesh(), result.structure()),
+        ("mean-face", mean_face.mesh.clone(), mean_face.structure.clone()),
+    ] {
+        let c = inner_face_score(
+            &mesh,
+            &subject.truth,
+            (&structure, &subject.structure),
+            &InnerFaceOptions::default(),
+        )?;
+        let png =
+            splineface::render::heatmap_png(&c.distances, c.raster.width, c.raster.height, maximum, "mm")
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+        let name = format!("{stem}-{what}.png");
+        std::fs::write(out.join(&name), png)?;
+        names.push((what, name, c.score.distance.mean));
+    }
+    writeln!(page, "\n## Pictures: {}\n", set.label)?;
+    writeln!(
+        page,
+        "The photos and dlib's points as the pipeline received them (a photo it left out is framed in red):\n\n![photos]({points_file})\n"
+    )?;
+    writeln!(
+        page,
+        "Truth → surface distance over the truth's inner face (0–{maximum} mm):\n"
+    )?;
+    writeln!(
+        page,
+        "| reconstruction ({:.2} mm) | mean face ({:.2} mm) |",
+        names[0].2, names[1].2
+    )?;
+    writeln!(page, "|---|---|")?;
+    writeln!(
+        page,
+        "| ![reconstruction]({}) | ![mean face]({}) |",
+        names[0].1, names[1].1
+    )?;
+    Ok(())
+}
+
 /// A seeded choice of `count` of `0..n`.
 fn choose(n: usize, count: usize, seed: u64) -> Vec<usize> {
     let mut rng = Lcg(seed
@@ -874,6 +983,16 @@ fn main() -> Result<()> {
         }
         writeln!(page)?;
     }
+    pictures(
+        &sets[0],
+        &subjects[0],
+        &mut landmarks,
+        reference,
+        &methods[0].options,
+        &mean_face,
+        &args.out,
+        &mut page,
+    )?;
     writeln!(page, "\n{:.0} s in all.", started.elapsed().as_secs_f64())?;
     eprintln!("{page}");
     std::fs::write(args.out.join("photos.md"), &page)?;
