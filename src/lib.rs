@@ -29,15 +29,20 @@
 //!   alternation with the multi-substructure SSIM constraint ([`depth::estimate_depth`]).
 //!
 //! * [`align::rasl_frontal`]: the frontal structure from the photos themselves (RASL low-rank
-//!   batch alignment of the photos and their mirror images).
+//!   batch alignment of the photos and their mirror images); [`align::landmark_agreement`]:
+//!   whether the photos' landmarks mark the same places of the face.
 //!
 //! * [`face`]: the reference grid deformed to an estimated structure (the paper's affine
 //!   `Tr_f`, or the measured-better local mode) and its clipped mesh; [`export`]: STEP, GLB and
-//!   textured OBJ; [`render`]: depth maps (EXR, 16-bit PNG), previews, heatmaps and synthetic
-//!   photos; [`compare`]: a reconstruction against a ground truth, with the paper's measures.
+//!   textured OBJ; [`render`]: depth maps (EXR, 16-bit PNG), previews, heatmaps, synthetic
+//!   photos and photo-realistic ones ([`render::render_photo`]: a textured mesh, a perspective
+//!   camera, light and shadow); [`compare`]: a reconstruction against a ground truth, with the
+//!   paper's measures and the inner-face score accuracy is claimed in
+//!   ([`compare::inner_face_score`]).
 //!
-//! * [`detect`]: face detection (SeetaFace, model embedded); [`landmarker`]: dlib's 68-point
-//!   `shape_predictor` in pure Rust; [`pipeline`]: the stages chained and every output file;
+//! * [`detect`]: face detection (SeetaFace, model embedded) and robust landmarking
+//!   ([`detect::landmark_face`]); [`landmarker`]: dlib's 68-point `shape_predictor` in pure
+//!   Rust; [`pipeline`]: the stages chained and every output file;
 //!   [`demo`]: the embedded demo subject and its photos.
 //!
 //! The face front ends feed the kernel a transform; they are built on top of it.

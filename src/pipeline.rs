@@ -1,12 +1,16 @@
 //! Photos (or their points) in, face out: the stages chained, and every output file.
 //!
+//! 0. **Agreement**: with images, photos whose landmarks mark other places of the face than the
+//!    other photos' do are left out ([`crate::align::landmark_agreement`]).
 //! 1. **Frontal structure**: RASL over the photos when images are given
 //!    ([`crate::align::rasl_frontal`]), else points-only Procrustes
 //!    ([`crate::align::procrustes_frontal`]).
 //! 2. **Depth**: [`crate::depth::estimate_depth`].
-//! 3. **Surface**: the reference grid deformed to the estimated structure
-//!    ([`crate::face::FaceSurface::deform`]) and its clipped mesh, textured from the most frontal
-//!    photo when there are images.
+//! 3. **Surface**: the reference grid deformed to the estimated structure, followed as far as
+//!    the evidence allows ([`StructureWeight`]; [`crate::face::shrunk_toward_reference`],
+//!    [`crate::face::FaceSurface::deform`]), and its clipped mesh, textured from the most frontal
+//!    photo when there are images. The photo stages use the reference as the photo path sees it
+//!    ([`ReferenceFace::as_seen_in_photos`]).
 //! 4. **Outputs** ([`Reconstruction::files`]), in the chosen units: `face.obj` (+ `face.mtl`,
 //!    `face.png` with a texture), `face.glb`, `face.ply`, `surface.json`, `surface.step`,
 //!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, and `aligned/*.png` after RASL.
