@@ -46,6 +46,7 @@ struct Args {
     pool: usize,
     methods: Vec<String>,
     calibrate: Option<PathBuf>,
+    perspective: bool,
     out: PathBuf,
     model: PathBuf,
     data: PathBuf,
@@ -62,6 +63,7 @@ fn parse_args() -> Result<Args> {
         pool: 24,
         methods: Vec::new(),
         calibrate: None,
+        perspective: false,
         out: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/target/photo-eval")),
         model: shared.join("models/shape_predictor_68_face_landmarks.dat"),
         data: shared.join("data/lps-head"),
@@ -83,6 +85,7 @@ fn parse_args() -> Result<Args> {
             "--methods" => args.methods = value()?.split(',').map(|m| m.trim().to_owned()).collect(),
             "--out" => args.out = value()?.into(),
             "--calibrate" => args.calibrate = Some(value()?.into()),
+            "--perspective" => args.perspective = true,
             "--model" => args.model = value()?.into(),
             "--data" => args.data = value()?.into(),
             "--ict" => args.ict = value()?.into(),
@@ -137,12 +140,14 @@ fn score(mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> 
 /// The photos' landmarks, found once per photo.
 struct Landmarks<'a> {
     model: &'a ShapePredictor,
+    /// Give the truth's landmarks projected instead of the landmarker's.
+    projected: bool,
     found: HashMap<String, Option<Vec<Point2<Real>>>>,
 }
 
 impl Landmarks<'_> {
     fn of(&mut self, key: &str, photo: &Photo) -> Option<Vec<Point2<Real>>> {
-        if std::env::var("TRUTHLM").is_ok() {
+        if self.projected {
             return Some(photo.projected.clone());
         }
         self.found
@@ -474,6 +479,93 @@ fn pictures(
     Ok(())
 }
 
+/// How much the scaled orthographic camera costs: each ICT subject photographed from near
+/// (0.4–0.6 m) and from far (10–20 m, the face the same size in the photo), 8 photos a set
+/// over 3 seeds, reconstructed from the truth's own landmarks projected (no landmarker noise)
+/// and from dlib's, the inner-face ratio to the mean face printed for each.
+fn perspective(
+    subjects: &[Subject],
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    args: &Args,
+) -> Result<()> {
+    let options = PipelineOptions::default();
+    for (label, distances) in [
+        ("near 0.4-0.6 m", (400.0, 600.0)),
+        ("far 10-20 m", (10_000.0, 20_000.0)),
+    ] {
+        for projected in [true, false] {
+            let mut ratios = Vec::new();
+            for subject in subjects.iter().filter(|s| s.name != "lps") {
+                let base = score(
+                    &MeanFace::new(reference)?.mesh,
+                    &MeanFace::new(reference)?.structure,
+                    subject,
+                )?;
+                let dir = photos::render_pool(
+                    subject,
+                    args.pool,
+                    45.0,
+                    distances,
+                    7,
+                    &args
+                        .out
+                        .join("pools-perspective")
+                        .join(format!("{}-{}", subject.name, distances.0)),
+                )?;
+                let mut pool = photos::read_set(&dir)?;
+                if projected {
+                    for p in &mut pool {
+                        p.name = format!("{}-projected", p.name);
+                    }
+                }
+                for seed in 0..3u64 {
+                    let chosen = choose(args.pool, 8, 77 + seed);
+                    let set = Set {
+                        subject: 0,
+                        label: String::new(),
+                        photos: chosen
+                            .iter()
+                            .map(|&k| {
+                                (
+                                    format!("{}/{}/{}", subject.name, distances.0, pool[k].name),
+                                    &pool[k],
+                                )
+                            })
+                            .collect(),
+                    };
+                    landmarks.projected = projected;
+                    if let (Outcome { score: Some(s), .. }, _) =
+                        run_set(&set, subject, landmarks, reference, &options)?
+                    {
+                        ratios.push(s.distance.mean / base.distance.mean);
+                    }
+                }
+            }
+            landmarks.projected = false;
+            eprintln!(
+                "{label}, {} landmarks: mean ratio {:.3} over {} sets {ratios:.4?}",
+                if projected { "projected" } else { "dlib's" },
+                mean_of(ratios.iter().copied()),
+                ratios.len()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// A markdown table's header: `first` columns, then a column per method.
+fn table_header(page: &mut String, first: &[&str], methods: &[Method]) -> Result<()> {
+    let names: Vec<&str> = first
+        .iter()
+        .copied()
+        .chain(methods.iter().map(|m| m.name))
+        .collect();
+    writeln!(page, "| {} |", names.join(" | "))?;
+    writeln!(page, "|{}", "---|".repeat(names.len()))?;
+    Ok(())
+}
+
 /// A seeded choice of `count` of `0..n`.
 fn choose(n: usize, count: usize, seed: u64) -> Vec<usize> {
     let mut rng = Lcg(seed
@@ -587,6 +679,7 @@ fn calibrate(
             &face,
             args.pool,
             45.0,
+            photos::DISTANCES,
             11,
             &args.out.join("pools").join(&face.name),
         )?;
@@ -784,6 +877,7 @@ fn main() -> Result<()> {
             subject,
             args.pool,
             max_yaw,
+            photos::DISTANCES,
             7,
             &args.out.join("pools").join(&subject.name),
         )?;
@@ -827,6 +921,7 @@ fn main() -> Result<()> {
 
     let mut landmarks = Landmarks {
         model: &model,
+        projected: false,
         found: HashMap::new(),
     };
     let baselines: Vec<InnerFaceScore> = subjects
@@ -834,6 +929,10 @@ fn main() -> Result<()> {
         .map(|s| score(&mean_face.mesh, &mean_face.structure, s))
         .collect::<Result<_>>()?;
     let methods = methods(&args.methods)?;
+    if args.perspective {
+        perspective(&subjects, &mut landmarks, reference, &args)?;
+        return Ok(());
+    }
     if let Some(path) = &args.calibrate {
         // Skins from the collage only: the scan's own skin stays for the evaluation.
         let collage: Vec<&subjects::Skin> = skins.iter().filter(|s| s.name.starts_with("collage")).collect();
@@ -878,9 +977,30 @@ fn main() -> Result<()> {
     writeln!(page, "# Photo-realistic evaluation\n")?;
     writeln!(
         page,
-        "Truth → surface distance over the truth's inner face (mm, after a similarity alignment: \
-         landmarks, then ICP), the whole photo path; the mean face is scored the same way in the same run. \
-         Ratios are to the mean face's error on the same subject (lower is better; 1 = no better than the mean face).\n"
+        "Made by `{}` (tools/photo_eval; seeds fixed in the code).\n\n\
+         Subjects: Lee Perry-Smith's textured head scan (`lps`; `../shared/data/lps-head`) with its two given photo sets, \
+         and {} ICT-FaceKit identities (`ict-N`, weights ~ N(0, 1) on the 60 identity modes) wearing real skins projected \
+         from frontal photos (the scan's own render and four faces of dlib's `bald_guys.jpg`). Each subject has a pool of \
+         {} photos rendered by `splineface::render::render_photo` (800 × 1000, perspective camera 0.4–2 m away with the face \
+         22–45% of the width, yaw within ±60° for the scan and ±45° for the ICT masks, pitch ±15°, roll ±8°, a directional \
+         light from the front hemisphere with soft shadows, ambient light, a sheen, gradient background, blur and sensor \
+         noise); sets of {:?} photos are drawn from it ({} seeds each). Everything goes through the whole photo path: SeetaFace \
+         detection, dlib's 68 points, the landmark agreement, RASL, depth, surface.\n\n\
+         Score: truth → surface distance over the truth's inner face (inside its contour and brows, the surface seen from \
+         the front), mm, after a similarity alignment (landmarks, then ICP; `splineface::compare::inner_face_score`). The \
+         unchanged mean face is scored the same way in the same run; ratios are to its error on the same subject (lower \
+         is better; above 1, worse than returning the mean face).\n\n\
+         Licences: the scan is \"Infinite, 3D Head Scan by Lee Perry-Smith is licensed under a Creative Commons \
+         Attribution 3.0 Unported License. Based on a work at www.triplegangers.com.\" The pictures below derive from it \
+         and are under that licence. ICT-FaceKit: Copyright (c) 2020 USC Institute for Creative Technologies, MIT licence.\n",
+        std::env::args().collect::<Vec<_>>().join(" ").replace(
+            &*std::env::args().next().unwrap_or_default(),
+            "cargo run --release --example photo_eval --"
+        ),
+        args.ict_subjects,
+        args.pool,
+        args.counts,
+        args.seeds
     )?;
     writeln!(
         page,
@@ -917,12 +1037,11 @@ fn main() -> Result<()> {
     }
 
     writeln!(page, "\n## Every set, {}\n", methods[0].name)?;
-    write!(page, "| set | photos used | undetected | mean face |")?;
-    for Method { name, .. } in &methods {
-        write!(page, " {name} |")?;
-    }
-    writeln!(page)?;
-    writeln!(page, "|---|---|---|---|{}", "---|".repeat(methods.len()))?;
+    table_header(
+        &mut page,
+        &["set", "photos used", "undetected", "mean face"],
+        &methods,
+    )?;
     for (k, set) in sets.iter().enumerate() {
         let first = &results[0][k];
         write!(
@@ -949,12 +1068,7 @@ fn main() -> Result<()> {
         page,
         "\n## Self-consistency: two disjoint halves of 16 photos, symmetric mean distance (mm)\n"
     )?;
-    write!(page, "| subject |")?;
-    for Method { name, .. } in &methods {
-        write!(page, " {name} |")?;
-    }
-    writeln!(page)?;
-    writeln!(page, "|---|{}", "---|".repeat(methods.len()))?;
+    table_header(&mut page, &["subject"], &methods)?;
     for (s, subject) in subjects.iter().enumerate() {
         let chosen = choose(args.pool, 16.min(args.pool), 999 + s as u64);
         let halves: Vec<Set<'_>> = [&chosen[..chosen.len() / 2], &chosen[chosen.len() / 2..]]

@@ -64,14 +64,14 @@ struct Shot {
     look: PhotoLook,
 }
 
-fn draw_shot(rng: &mut Lcg, max_yaw: Real, seed: u64) -> Shot {
+fn draw_shot(rng: &mut Lcg, max_yaw: Real, (near, far): (Real, Real), seed: u64) -> Shot {
     let ypr = [
         rng.uniform(-max_yaw, max_yaw),
         rng.uniform(-15.0, 15.0),
         rng.uniform(-8.0, 8.0),
     ];
-    // 0.4 to 2 m, spread evenly in its logarithm.
-    let distance = (400.0 as Real).ln() + rng.next() * ((2000.0 as Real).ln() - (400.0 as Real).ln());
+    // Spread evenly in its logarithm.
+    let distance = near.ln() + rng.next() * (far.ln() - near.ln());
     // From the front hemisphere, seldom from below (as photos are lit).
     let direction = loop {
         let d = Vector3::new(
@@ -114,11 +114,24 @@ fn draw_shot(rng: &mut Lcg, max_yaw: Real, seed: u64) -> Shot {
 /// again.
 const POOL_VERSION: u64 = 2;
 
-/// `count` photos of `subject` under random poses (yaw within ±`max_yaw`), distances
-/// (0.4–2 m), focal lengths (the face 22–45% of the width) and lights, rendered into `dir`
-/// (reused when `dir` already holds this pool).
-pub fn render_pool(subject: &Subject, count: usize, max_yaw: Real, seed: u64, dir: &Path) -> Result<PathBuf> {
-    let stamp = format!("{POOL_VERSION} {} {count} {max_yaw} {seed}", subject.name);
+/// The camera distances of [`render_pool`] by default, mm.
+pub const DISTANCES: (Real, Real) = (400.0, 2000.0);
+
+/// `count` photos of `subject` under random poses (yaw within ±`max_yaw`), distances (within
+/// `distances`, mm), focal lengths (the face 22–45% of the width) and lights, rendered into
+/// `dir` (reused when `dir` already holds this pool).
+pub fn render_pool(
+    subject: &Subject,
+    count: usize,
+    max_yaw: Real,
+    distances: (Real, Real),
+    seed: u64,
+    dir: &Path,
+) -> Result<PathBuf> {
+    let mut stamp = format!("{POOL_VERSION} {} {count} {max_yaw} {seed}", subject.name);
+    if distances != DISTANCES {
+        stamp += &format!(" {}-{}", distances.0, distances.1);
+    }
     let stamp_path = dir.join("pool.txt");
     if std::fs::read_to_string(&stamp_path).ok().as_deref() == Some(stamp.as_str()) {
         return Ok(dir.to_path_buf());
@@ -129,7 +142,7 @@ pub fn render_pool(subject: &Subject, count: usize, max_yaw: Real, seed: u64, di
     let mut rng = Lcg(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x5EED);
     let mut records = Vec::new();
     for k in 0..count {
-        let shot = draw_shot(&mut rng, max_yaw, seed.wrapping_add(k as u64));
+        let shot = draw_shot(&mut rng, max_yaw, distances, seed.wrapping_add(k as u64));
         let focal = shot.face_fraction * width as Real * shot.distance / face_width;
         let camera =
             Camera::looking_at_head(shot.ypr, &subject.target, shot.distance, focal, (width, height));

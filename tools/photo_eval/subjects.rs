@@ -347,34 +347,14 @@ pub fn skin_from_photo(
             Point2::new(uv.x * s - 0.5, (1.0 - uv.y) * s - 0.5)
         });
         let pix = t.map(|v| pixel_of[v as usize]);
-        let (lo_x, hi_x) = (
-            corners
-                .iter()
-                .map(|c| c.x)
-                .fold(Real::INFINITY, Real::min)
-                .floor()
-                .max(0.0) as u32,
-            corners
-                .iter()
-                .map(|c| c.x)
-                .fold(Real::NEG_INFINITY, Real::max)
-                .ceil()
-                .min(s - 1.0) as u32,
-        );
-        let (lo_y, hi_y) = (
-            corners
-                .iter()
-                .map(|c| c.y)
-                .fold(Real::INFINITY, Real::min)
-                .floor()
-                .max(0.0) as u32,
-            corners
-                .iter()
-                .map(|c| c.y)
-                .fold(Real::NEG_INFINITY, Real::max)
-                .ceil()
-                .min(s - 1.0) as u32,
-        );
+        // The texels the triangle's box covers, along one axis.
+        let span = |axis: fn(&Point2<Real>) -> Real| {
+            let lo = corners.iter().map(axis).fold(Real::INFINITY, Real::min);
+            let hi = corners.iter().map(axis).fold(Real::NEG_INFINITY, Real::max);
+            (lo.floor().max(0.0) as u32, hi.ceil().min(s - 1.0) as u32)
+        };
+        let (lo_x, hi_x) = span(|c| c.x);
+        let (lo_y, hi_y) = span(|c| c.y);
         let [a, b, c] = corners;
         let area = (b.x - a.x) * (c.y - a.y) - (c.x - a.x) * (b.y - a.y);
         if area.abs() < 1e-12 {
