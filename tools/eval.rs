@@ -135,8 +135,41 @@ const METHODS: [Method; 6] = [
 const DEFAULT: usize = 3;
 const PAPER: usize = 1;
 
-/// Photographs a subject: random poses, the 68 landmark vertices projected with noise.
+/// Where a landmarker puts the structure's points off the contour, relative to the landmark
+/// vertices: the default reference's photo structure less its vertex structure (see
+/// `ReferenceFace::photo_structure`); zero on the contour, whose points are put on the outline
+/// by `common::landmarks_in_view` instead.
+fn landmarker_offsets() -> Vec<nalgebra::Vector3<Real>> {
+    let reference = ReferenceFace::embedded();
+    reference
+        .photo_structure()
+        .iter()
+        .zip(reference.structure())
+        .zip(splineface::structure::POINTS.iter())
+        .map(|((a, b), def)| {
+            if def.group == splineface::structure::Group::Contour {
+                nalgebra::Vector3::zeros()
+            } else {
+                a - b
+            }
+        })
+        .collect()
+}
+
+/// The subject's structure as a landmarker places it (`landmarker_offsets`).
+fn seen_structure(subject: &Subject) -> Vec<Point3<Real>> {
+    subject
+        .structure
+        .iter()
+        .zip(landmarker_offsets())
+        .map(|(p, d)| p + d)
+        .collect()
+}
+
+/// Photographs a subject: random poses, the 40 points as a landmarker places them (the jaw
+/// points on the outline, the others moved by `landmarker_offsets`) projected with noise.
 fn photograph(ict: &Ict, subject: &Subject, count: usize, noise: Real, rng: &mut Lcg) -> Result<Vec<Input>> {
+    let offsets = landmarker_offsets();
     let mut inputs = Vec::with_capacity(count);
     for k in 0..count {
         let view = View::from_yaw_pitch_roll_degrees(
@@ -150,10 +183,13 @@ fn photograph(ict: &Ict, subject: &Subject, count: usize, noise: Real, rng: &mut
         let sigma = noise / 100.0 * 50.0 / photo.raster.spacing;
         // The jaw points on the outline, as a landmarker puts them (1 unit ≈ 1.3 mm bands).
         let seen = common::landmarks_in_view(&subject.mesh, &ict.landmarks, &view, 1.0);
-        let ibug: Vec<_> = seen
+        let seen = splineface::structure::from_ibug68(&seen)?;
+        let points: Vec<_> = seen
             .iter()
-            .map(|q| {
-                let p = photo.project(q);
+            .zip(&offsets)
+            .map(|(q, d)| {
+                let q = q + d;
+                let p = photo.project(&q);
                 nalgebra::Point2::new(
                     (p.x + sigma * rng.gaussian()).clamp(0.0, 319.0),
                     (p.y + sigma * rng.gaussian()).clamp(0.0, 383.0),
@@ -166,7 +202,7 @@ fn photograph(ict: &Ict, subject: &Subject, count: usize, noise: Real, rng: &mut
             image::Rgb([v, v, v])
         });
         inputs.push(Input {
-            points: PhotoPoints::from_ibug68(format!("p{k}"), &ibug)?,
+            points: PhotoPoints::new(format!("p{k}"), points)?,
             image: Some(PhotoImage { grey, colour }),
         });
     }
@@ -179,7 +215,8 @@ fn score(method: &Method, inputs: &[Input], subject: &Subject) -> Result<(Compar
     let units = Units::default();
     let mm = units.per_canonical_unit();
     let truth = subject.mesh.transformed(&units.transform());
-    let truth_structure: Vec<Point3<Real>> = subject.structure.iter().map(|p| p * mm).collect();
+    // Aligned through the landmarks as a landmarker places them, like the reconstruction's.
+    let truth_structure: Vec<Point3<Real>> = seen_structure(subject).iter().map(|p| p * mm).collect();
     let (mesh, structure) = match method.run {
         None => {
             let face = FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?;
@@ -189,7 +226,11 @@ fn score(method: &Method, inputs: &[Input], subject: &Subject) -> Result<(Compar
                 .transformed(&units.transform());
             (
                 mesh,
-                reference.structure().iter().map(|p| p * mm).collect::<Vec<_>>(),
+                reference
+                    .photo_structure()
+                    .iter()
+                    .map(|p| p * mm)
+                    .collect::<Vec<_>>(),
             )
         }
         Some((rasl, frontal, sim, deformation)) => {
