@@ -16,6 +16,9 @@
 //!   the sparse basis matrix [`BasisMatrix`], affine maps, JSON serialisation.
 //! * [`SurfaceFit`]: least-squares control grids from scattered samples, with an optional
 //!   thin-plate smoothness term, and a residual [`FitReport`].
+//! * [`SurfaceSpace`]: a linear space of surfaces on one knot layout, `B₀ + Σₖ wₖ ΔBₖ` (a shape
+//!   model's mean and modes), with mode fitting from displacement fields and regularised
+//!   least-squares weights.
 //!
 //! Conventions: control grids are flat and row-major, `rows × cols`, row `i` along `u` and
 //! column `j` along `v`, so `bᵢⱼ` is `control_points()[i·cols + j]`. Degrees, never orders.
@@ -38,11 +41,13 @@ mod band;
 mod basis;
 mod fit;
 mod knots;
+mod space;
 mod surface;
 
 pub use basis::{basis_derivatives, basis_functions};
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use knots::{KnotVector, MAX_DEGREE};
+pub use space::{SpaceSamples, SurfaceSpace};
 pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives};
 
 use crate::Real;
@@ -229,6 +234,46 @@ pub enum BSplineError {
         /// Advice, depending on whether smoothing was on.
         hint: &'static str,
     },
+    /// A mode's displacement grid does not have one vector per control point.
+    #[error("mode {mode} has {got} displacements; the base's grid has {expected} control points")]
+    ModeSize {
+        /// The mode's index.
+        mode: usize,
+        /// Displacements given.
+        got: usize,
+        /// `rows·cols` of the base.
+        expected: usize,
+    },
+    /// A mode's displacement has a NaN or infinite coordinate.
+    #[error("mode {mode}: the displacement of control point ({row}, {col}) is not finite")]
+    NonFiniteMode {
+        /// The mode's index.
+        mode: usize,
+        /// Its row.
+        row: usize,
+        /// Its column.
+        col: usize,
+    },
+    /// A list of per-mode values (weights, regularisers) has the wrong length.
+    #[error("{got} values given for a space of {expected} modes")]
+    WeightCount {
+        /// Values given.
+        got: usize,
+        /// The number of modes.
+        expected: usize,
+    },
+    /// A mode weight is NaN or infinite.
+    #[error("mode weight {index} is not finite ({value})")]
+    NonFiniteModeWeight {
+        /// The weight's index.
+        index: usize,
+        /// Its value.
+        value: Real,
+    },
+    /// The samples leave some combination of mode weights free (modes zero or dependent at
+    /// the samples) and no regularisation fixes it.
+    #[error("the samples do not determine the mode weights; add samples or a regularisation")]
+    ModesUnderdetermined,
     /// The fitting system would need more memory than the kernel allows itself.
     #[error(
         "a {rows} × {cols} grid is too large to fit here: the banded normal matrix would hold \

@@ -9,6 +9,7 @@ mod bspline_basis;
 mod bspline_fit;
 mod bspline_knots;
 mod bspline_serde;
+mod bspline_space;
 mod bspline_surface;
 mod common;
 mod compare;

@@ -1,0 +1,374 @@
+//! Linear spaces of surfaces over one knot layout: a base control grid plus displacement grids.
+
+use nalgebra::{Affine3, DMatrix, DVector, Point3, Vector3};
+
+use super::BSplineError;
+use super::fit::{FitReport, SurfaceFit};
+use super::surface::{BSplineSurface, BasisMatrix};
+use crate::Real;
+
+/// A linear space of B-spline surfaces: a base surface `B₀` and `K` displacement grids `ΔBₖ` on
+/// its knots, spanning
+///
+/// ```text
+/// B(w) = B₀ + Σₖ wₖ ΔBₖ,       F_w(u, v) = Σᵢ Σⱼ Nᵢ,ₚ(u) Nⱼ,q(v) (b⁰ᵢⱼ + Σₖ wₖ Δbᵏᵢⱼ)
+/// ```
+///
+/// Because a surface is linear in its control grid, `F_w = F₀ + Σₖ wₖ Dₖ` where `Dₖ` is the
+/// spline of the `k`-th displacement grid: every member of the space, and every derivative of
+/// one, is the base's plus a weighted sum of the modes'. The space is face-agnostic: a
+/// statistical shape model (mean plus principal components), a set of blend shapes, or any
+/// other linear family of surfaces on one parametrisation.
+///
+/// Affine invariance holds per mode: an affine map `x ↦ A x + t` takes the space to the space
+/// with base `A B₀ + t` and modes `A ΔBₖ` (displacements are vectors, so the translation does
+/// not touch them), and the member with weights `w` to the member with the same weights
+/// ([`SurfaceSpace::transformed`]).
+///
+/// Modes come from displacement fields sampled on the base's parametrisation and fitted by the
+/// kernel's least squares ([`SurfaceSpace::fit_displacement`]); weights that best explain
+/// target points come from a regularised linear least-squares solve
+/// ([`SurfaceSpace::fit_weights`]).
+///
+/// ```
+/// use nalgebra::{Point3, Vector3};
+/// use splineface::bspline::{BSplineSurface, KnotVector, SurfaceSpace};
+///
+/// // A flat bicubic patch and one mode that lifts its centre.
+/// let k = KnotVector::clamped_uniform(3, 4, 0.0, 1.0)?;
+/// let grid = (0..16).map(|i| Point3::new((i / 4) as f64, (i % 4) as f64, 0.0)).collect();
+/// let base = BSplineSurface::new(k.clone(), k, 4, 4, grid)?;
+/// let lift = (0..16)
+///     .map(|i| if (1..3).contains(&(i / 4)) && (1..3).contains(&(i % 4)) { Vector3::z() } else { Vector3::zeros() })
+///     .collect();
+/// let space = SurfaceSpace::new(base, vec![lift])?;
+/// let member = space.surface(&[2.0])?;
+/// let p = member.eval(0.5, 0.5)?;
+/// // At the centre the inner control points carry 3/4 of the cubic Bernstein weight per axis.
+/// assert!((p.z - 2.0 * (0.75f64).powi(2)).abs() < 1e-12);
+/// # Ok::<(), splineface::bspline::BSplineError>(())
+/// ```
+#[derive(Debug, Clone, PartialEq)]
+pub struct SurfaceSpace {
+    base: BSplineSurface,
+    modes: Vec<Vec<Vector3<Real>>>,
+}
+
+/// The samples of a space at a list of parameters: the base's points and each mode's
+/// displacement there, from [`SurfaceSpace::sample`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpaceSamples {
+    /// `F₀(uₛ, vₛ)`, one per parameter.
+    pub base: Vec<Point3<Real>>,
+    /// `Dₖ(uₛ, vₛ)`: `modes[k][s]`.
+    pub modes: Vec<Vec<Vector3<Real>>>,
+}
+
+impl SpaceSamples {
+    /// The member with weights `w` at the sampled parameters: `F₀ + Σₖ wₖ Dₖ`.
+    ///
+    /// # Panics
+    /// When `weights.len()` differs from the number of modes (a programming error; the
+    /// checked entry points are on [`SurfaceSpace`]).
+    pub fn member(&self, weights: &[Real]) -> Vec<Point3<Real>> {
+        assert_eq!(weights.len(), self.modes.len(), "one weight per mode");
+        let mut out = self.base.clone();
+        for (mode, &w) in self.modes.iter().zip(weights) {
+            if w != 0.0 {
+                for (p, d) in out.iter_mut().zip(mode) {
+                    *p += d * w;
+                }
+            }
+        }
+        out
+    }
+}
+
+impl SurfaceSpace {
+    /// A space from its base surface and displacement grids, each row-major like the base's
+    /// control grid (`rows·cols` vectors).
+    ///
+    /// # Errors
+    /// [`BSplineError::ModeSize`] for a grid of another size, [`BSplineError::NonFiniteMode`]
+    /// for a NaN or infinite displacement.
+    pub fn new(base: BSplineSurface, modes: Vec<Vec<Vector3<Real>>>) -> Result<Self, BSplineError> {
+        let expected = base.rows() * base.cols();
+        for (k, mode) in modes.iter().enumerate() {
+            if mode.len() != expected {
+                return Err(BSplineError::ModeSize {
+                    mode: k,
+                    got: mode.len(),
+                    expected,
+                });
+            }
+            if let Some(at) = mode.iter().position(|d| !d.iter().all(|c| c.is_finite())) {
+                return Err(BSplineError::NonFiniteMode {
+                    mode: k,
+                    row: at / base.cols(),
+                    col: at % base.cols(),
+                });
+            }
+        }
+        Ok(SurfaceSpace { base, modes })
+    }
+
+    /// The base surface `B₀` (all weights zero).
+    pub fn base(&self) -> &BSplineSurface {
+        &self.base
+    }
+
+    /// The number of modes `K`.
+    pub fn mode_count(&self) -> usize {
+        self.modes.len()
+    }
+
+    /// The displacement grid `ΔBₖ`, row-major.
+    ///
+    /// # Panics
+    /// When `k ≥ mode_count()`.
+    pub fn mode(&self, k: usize) -> &[Vector3<Real>] {
+        &self.modes[k]
+    }
+
+    /// All displacement grids.
+    pub fn modes(&self) -> &[Vec<Vector3<Real>>] {
+        &self.modes
+    }
+
+    /// The space with one more mode.
+    ///
+    /// # Errors
+    /// As [`SurfaceSpace::new`].
+    pub fn with_mode(mut self, mode: Vec<Vector3<Real>>) -> Result<Self, BSplineError> {
+        let base = self.base.clone();
+        self.modes.push(mode);
+        let modes = std::mem::take(&mut self.modes);
+        Self::new(base, modes)
+    }
+
+    /// The first `k` modes only (all of them when `k ≥ mode_count()`).
+    pub fn truncated(&self, k: usize) -> Self {
+        SurfaceSpace {
+            base: self.base.clone(),
+            modes: self.modes.iter().take(k).cloned().collect(),
+        }
+    }
+
+    fn check_weights(&self, weights: &[Real]) -> Result<(), BSplineError> {
+        if weights.len() != self.modes.len() {
+            return Err(BSplineError::WeightCount {
+                got: weights.len(),
+                expected: self.modes.len(),
+            });
+        }
+        if let Some(index) = weights.iter().position(|w| !w.is_finite()) {
+            return Err(BSplineError::NonFiniteModeWeight {
+                index,
+                value: weights[index],
+            });
+        }
+        Ok(())
+    }
+
+    /// The control grid `B₀ + Σₖ wₖ ΔBₖ`.
+    ///
+    /// # Errors
+    /// [`BSplineError::WeightCount`] unless there is one weight per mode,
+    /// [`BSplineError::NonFiniteModeWeight`] for a NaN or infinite weight.
+    pub fn control_points(&self, weights: &[Real]) -> Result<Vec<Point3<Real>>, BSplineError> {
+        self.check_weights(weights)?;
+        let mut grid = self.base.control_points().to_vec();
+        for (mode, &w) in self.modes.iter().zip(weights) {
+            if w != 0.0 {
+                for (b, d) in grid.iter_mut().zip(mode) {
+                    *b += d * w;
+                }
+            }
+        }
+        Ok(grid)
+    }
+
+    /// The member surface with weights `w`.
+    ///
+    /// # Errors
+    /// As [`SurfaceSpace::control_points`]; [`BSplineError::NonFiniteControlPoint`] when the
+    /// weights are so large that the grid overflows.
+    pub fn surface(&self, weights: &[Real]) -> Result<BSplineSurface, BSplineError> {
+        self.base.with_control_points(self.control_points(weights)?)
+    }
+
+    /// The spline of mode `k` alone, `Dₖ(u, v)`, as a surface whose control points are the
+    /// displacement vectors (its values are displacements, not positions).
+    ///
+    /// # Panics
+    /// When `k ≥ mode_count()`.
+    pub fn mode_surface(&self, k: usize) -> BSplineSurface {
+        self.base
+            .with_control_points(self.modes[k].iter().map(|d| Point3::from(*d)).collect())
+            .expect("a validated mode on the base's knots")
+    }
+
+    /// The space mapped by an affine transform: base `A B₀ + t`, modes `A ΔBₖ`, so that
+    /// `transformed(A).surface(w) = surface(w).transformed(A)` for every `w`.
+    pub fn transformed(&self, affine: &Affine3<Real>) -> Self {
+        let linear = affine.matrix().fixed_view::<3, 3>(0, 0).into_owned();
+        SurfaceSpace {
+            base: self.base.transformed(affine),
+            modes: self
+                .modes
+                .iter()
+                .map(|mode| mode.iter().map(|d| linear * d).collect())
+                .collect(),
+        }
+    }
+
+    /// The base's points and every mode's displacements at `params`: all that evaluating
+    /// members at fixed parameters, or fitting weights there, needs (`K + 1` sparse products
+    /// with one basis matrix).
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::basis_matrix`] for a parameter that is not finite or outside the
+    /// domain.
+    pub fn sample(&self, params: &[[Real; 2]]) -> Result<SpaceSamples, BSplineError> {
+        let basis = self.base.basis_matrix(params)?;
+        Ok(self.sample_with(&basis))
+    }
+
+    fn sample_with(&self, basis: &BasisMatrix) -> SpaceSamples {
+        let modes = self
+            .modes
+            .iter()
+            .map(|mode| {
+                (0..basis.nrows())
+                    .map(|r| {
+                        let (cols, vals) = basis.row(r);
+                        cols.iter().zip(vals).map(|(&c, &v)| mode[c] * v).sum()
+                    })
+                    .collect()
+            })
+            .collect();
+        SpaceSamples {
+            base: basis.mul(self.base.control_points()),
+            modes,
+        }
+    }
+
+    /// Least-squares displacement grid of a displacement field sampled on the base's
+    /// parametrisation: `displacements[s]` at `params[s]`, with the thin-plate smoothness `λ`
+    /// of [`SurfaceFit`]. The fit is linear in the data, so fitting the displaced positions
+    /// and subtracting the fitted base gives the same grid; fitting the field directly keeps
+    /// the base's fitting error out of the mode. Add the result with
+    /// [`SurfaceSpace::with_mode`].
+    ///
+    /// # Errors
+    /// As [`SurfaceFit::fit`].
+    pub fn fit_displacement(
+        &self,
+        params: &[[Real; 2]],
+        displacements: &[Vector3<Real>],
+        smoothness: Real,
+    ) -> Result<(Vec<Vector3<Real>>, FitReport), BSplineError> {
+        let as_points: Vec<Point3<Real>> = displacements.iter().map(|d| Point3::from(*d)).collect();
+        let fitted = SurfaceFit::new(self.base.knots_u().clone(), self.base.knots_v().clone())
+            .smoothness(smoothness)
+            .fit(params, &as_points)?;
+        Ok((
+            fitted.surface.control_points().iter().map(|p| p.coords).collect(),
+            fitted.report,
+        ))
+    }
+
+    /// The weights whose member passes closest to `targets[s]` at `params[s]`, regularised:
+    ///
+    /// ```text
+    /// w* = argmin_w  Σₛ ‖F₀(uₛ, vₛ) + Σₖ wₖ Dₖ(uₛ, vₛ) − targetₛ‖²  +  Σₖ ρₖ wₖ²
+    /// ```
+    ///
+    /// With a Gaussian prior `wₖ ~ N(0, σₖ²)` and isotropic sample noise of deviation `ε` this
+    /// is the MAP estimate for `ρₖ = ε² / σₖ²`; `ρ = 0` is plain least squares. Solved by the
+    /// `K × K` normal equations (Cholesky), which is exact and cheap for the tens of modes a
+    /// shape space has.
+    ///
+    /// # Errors
+    /// [`BSplineError::NoSamples`], [`BSplineError::SampleCountMismatch`],
+    /// [`BSplineError::NonFiniteSample`], [`BSplineError::InvalidSampleParameter`] for bad
+    /// samples; [`BSplineError::WeightCount`] unless there is one `ρ` per mode,
+    /// [`BSplineError::InvalidWeight`] for a negative or non-finite `ρ`;
+    /// [`BSplineError::ModesUnderdetermined`] when the samples do not determine the weights
+    /// (modes that are zero, or dependent, at the samples) and `ρ` does not either.
+    pub fn fit_weights(
+        &self,
+        params: &[[Real; 2]],
+        targets: &[Point3<Real>],
+        ridge: &[Real],
+    ) -> Result<Vec<Real>, BSplineError> {
+        if params.is_empty() {
+            return Err(BSplineError::NoSamples);
+        }
+        if targets.len() != params.len() {
+            return Err(BSplineError::SampleCountMismatch {
+                params: params.len(),
+                values: targets.len(),
+                what: "points",
+            });
+        }
+        if let Some(index) = targets
+            .iter()
+            .position(|t| !t.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(BSplineError::NonFiniteSample { index });
+        }
+        if ridge.len() != self.modes.len() {
+            return Err(BSplineError::WeightCount {
+                got: ridge.len(),
+                expected: self.modes.len(),
+            });
+        }
+        if let Some(index) = ridge.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+            return Err(BSplineError::InvalidWeight {
+                index,
+                value: ridge[index],
+            });
+        }
+        for (index, &[u, v]) in params.iter().enumerate() {
+            super::surface::check_parameter(self.base.knots_u(), self.base.knots_v(), u, v).map_err(|e| {
+                BSplineError::InvalidSampleParameter {
+                    index,
+                    source: Box::new(e),
+                }
+            })?;
+        }
+        let samples = self.sample(params)?;
+        let k = self.modes.len();
+        if k == 0 {
+            return Ok(Vec::new());
+        }
+        let residuals: Vec<Vector3<Real>> = targets.iter().zip(&samples.base).map(|(t, b)| t - b).collect();
+        let mut normal = DMatrix::<Real>::zeros(k, k);
+        let mut rhs = DVector::<Real>::zeros(k);
+        for a in 0..k {
+            let da = &samples.modes[a];
+            rhs[a] = da.iter().zip(&residuals).map(|(d, r)| d.dot(r)).sum();
+            for b in a..k {
+                let dot: Real = da.iter().zip(&samples.modes[b]).map(|(x, y)| x.dot(y)).sum();
+                normal[(a, b)] = dot;
+                normal[(b, a)] = dot;
+            }
+            normal[(a, a)] += ridge[a];
+        }
+        // Dependent modes make the normal matrix singular to rounding; refuse rather than
+        // return weights that rounding chose. The threshold is relative to the largest
+        // diagonal entry.
+        let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
+        let cholesky = nalgebra::linalg::Cholesky::new(normal.clone());
+        let ok = scale > 0.0
+            && cholesky.as_ref().is_some_and(|c| {
+                let l = c.l_dirty();
+                (0..k).all(|a| l[(a, a)] * l[(a, a)] > 1e-12 * scale)
+            });
+        match cholesky {
+            Some(c) if ok => Ok(c.solve(&rhs).iter().copied().collect()),
+            _ => Err(BSplineError::ModesUnderdetermined),
+        }
+    }
+}
