@@ -82,6 +82,81 @@ impl SpaceSamples {
         }
         out
     }
+
+    /// The regularised least-squares weights for `targets` at the sampled places (see
+    /// [`SurfaceSpace::fit_weights`], which samples and calls this); useful on its own when
+    /// the samples are not surface points (a shape's landmarks carried by the modes).
+    ///
+    /// # Errors
+    /// [`BSplineError::SampleCountMismatch`], [`BSplineError::NonFiniteSample`] for bad
+    /// targets; [`BSplineError::ModeSize`] for a mode with another number of samples than the
+    /// base; [`BSplineError::WeightCount`], [`BSplineError::InvalidWeight`] for a bad `ρ`;
+    /// [`BSplineError::ModesUnderdetermined`].
+    pub fn fit_weights(&self, targets: &[Point3<Real>], ridge: &[Real]) -> Result<Vec<Real>, BSplineError> {
+        if targets.len() != self.base.len() {
+            return Err(BSplineError::SampleCountMismatch {
+                params: self.base.len(),
+                values: targets.len(),
+                what: "points",
+            });
+        }
+        if let Some(index) = targets
+            .iter()
+            .position(|t| !t.coords.iter().all(|c| c.is_finite()))
+        {
+            return Err(BSplineError::NonFiniteSample { index });
+        }
+        if let Some(mode) = self.modes.iter().position(|m| m.len() != self.base.len()) {
+            return Err(BSplineError::ModeSize {
+                mode,
+                got: self.modes[mode].len(),
+                expected: self.base.len(),
+            });
+        }
+        let k = self.modes.len();
+        if ridge.len() != k {
+            return Err(BSplineError::WeightCount {
+                got: ridge.len(),
+                expected: k,
+            });
+        }
+        if let Some(index) = ridge.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
+            return Err(BSplineError::InvalidWeight {
+                index,
+                value: ridge[index],
+            });
+        }
+        if k == 0 {
+            return Ok(Vec::new());
+        }
+        let residuals: Vec<Vector3<Real>> = targets.iter().zip(&self.base).map(|(t, b)| t - b).collect();
+        let mut normal = DMatrix::<Real>::zeros(k, k);
+        let mut rhs = DVector::<Real>::zeros(k);
+        for a in 0..k {
+            let da = &self.modes[a];
+            rhs[a] = da.iter().zip(&residuals).map(|(d, r)| d.dot(r)).sum();
+            for b in a..k {
+                let dot: Real = da.iter().zip(&self.modes[b]).map(|(x, y)| x.dot(y)).sum();
+                normal[(a, b)] = dot;
+                normal[(b, a)] = dot;
+            }
+            normal[(a, a)] += ridge[a];
+        }
+        // Dependent modes make the normal matrix singular to rounding; refuse rather than
+        // return weights that rounding chose. The threshold is relative to the largest
+        // diagonal entry.
+        let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
+        let cholesky = nalgebra::linalg::Cholesky::new(normal);
+        let ok = scale > 0.0
+            && cholesky.as_ref().is_some_and(|c| {
+                let l = c.l_dirty();
+                (0..k).all(|a| l[(a, a)] * l[(a, a)] > 1e-12 * scale)
+            });
+        match cholesky {
+            Some(c) if ok => Ok(c.solve(&rhs).iter().copied().collect()),
+            _ => Err(BSplineError::ModesUnderdetermined),
+        }
+    }
 }
 
 impl SurfaceSpace {
@@ -318,18 +393,6 @@ impl SurfaceSpace {
         {
             return Err(BSplineError::NonFiniteSample { index });
         }
-        if ridge.len() != self.modes.len() {
-            return Err(BSplineError::WeightCount {
-                got: ridge.len(),
-                expected: self.modes.len(),
-            });
-        }
-        if let Some(index) = ridge.iter().position(|r| !(r.is_finite() && *r >= 0.0)) {
-            return Err(BSplineError::InvalidWeight {
-                index,
-                value: ridge[index],
-            });
-        }
         for (index, &[u, v]) in params.iter().enumerate() {
             super::surface::check_parameter(self.base.knots_u(), self.base.knots_v(), u, v).map_err(|e| {
                 BSplineError::InvalidSampleParameter {
@@ -338,37 +401,6 @@ impl SurfaceSpace {
                 }
             })?;
         }
-        let samples = self.sample(params)?;
-        let k = self.modes.len();
-        if k == 0 {
-            return Ok(Vec::new());
-        }
-        let residuals: Vec<Vector3<Real>> = targets.iter().zip(&samples.base).map(|(t, b)| t - b).collect();
-        let mut normal = DMatrix::<Real>::zeros(k, k);
-        let mut rhs = DVector::<Real>::zeros(k);
-        for a in 0..k {
-            let da = &samples.modes[a];
-            rhs[a] = da.iter().zip(&residuals).map(|(d, r)| d.dot(r)).sum();
-            for b in a..k {
-                let dot: Real = da.iter().zip(&samples.modes[b]).map(|(x, y)| x.dot(y)).sum();
-                normal[(a, b)] = dot;
-                normal[(b, a)] = dot;
-            }
-            normal[(a, a)] += ridge[a];
-        }
-        // Dependent modes make the normal matrix singular to rounding; refuse rather than
-        // return weights that rounding chose. The threshold is relative to the largest
-        // diagonal entry.
-        let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
-        let cholesky = nalgebra::linalg::Cholesky::new(normal.clone());
-        let ok = scale > 0.0
-            && cholesky.as_ref().is_some_and(|c| {
-                let l = c.l_dirty();
-                (0..k).all(|a| l[(a, a)] * l[(a, a)] > 1e-12 * scale)
-            });
-        match cholesky {
-            Some(c) if ok => Ok(c.solve(&rhs).iter().copied().collect()),
-            _ => Err(BSplineError::ModesUnderdetermined),
-        }
+        self.sample(params)?.fit_weights(targets, ridge)
     }
 }

@@ -23,6 +23,7 @@
 //! Which is the default is set by measurement on ICT-FaceKit identities
 //! (`cargo run --release --example surface_eval`): see [`Deformation::default`].
 
+mod space;
 mod tessellate;
 
 use nalgebra::{Affine3, Matrix3, Matrix4, Point2, Point3, Vector3};
@@ -32,6 +33,7 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
+pub use space::{DenseFitOptions, FaceSpace, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).
@@ -113,6 +115,9 @@ pub enum FaceError {
     /// Triangulating the clip region failed.
     #[error("triangulating the face region: {0}")]
     Triangulation(String),
+    /// A face space's inputs do not fit together (see [`FaceSpace::from_displacements`]).
+    #[error("face space: {0}")]
+    Space(String),
 }
 
 /// How well a deformed surface follows the structure it was deformed to.
@@ -141,6 +146,20 @@ pub struct FaceSurface {
     transform: Affine3<Real>,
     deformation: Deformation,
     report: DeformationReport,
+}
+
+/// The parameters of the reference's structure points: their frontal positions through the
+/// reference frame, clamped to the domain.
+fn structure_params(reference: &ReferenceFace) -> Vec<Point2<Real>> {
+    let frame = reference.frame();
+    reference
+        .structure()
+        .iter()
+        .map(|p| {
+            let q = frame.parameters(p.x, p.y);
+            Point2::new(q.x.clamp(0.0, 1.0), q.y.clamp(0.0, 1.0))
+        })
+        .collect()
 }
 
 /// Checks an estimated structure: 40 finite points.
@@ -254,14 +273,7 @@ impl FaceSurface {
             return Err(FaceError::Degenerate("flat (the affine map to it is singular)"));
         }
         let frame = *reference.frame();
-        let params: Vec<Point2<Real>> = reference
-            .structure()
-            .iter()
-            .map(|p| {
-                let q = frame.parameters(p.x, p.y);
-                Point2::new(q.x.clamp(0.0, 1.0), q.y.clamp(0.0, 1.0))
-            })
-            .collect();
+        let params = structure_params(reference);
         let flat: Vec<[Real; 2]> = params.iter().map(|p| [p.x, p.y]).collect();
         let affine = reference.surface().transformed(&transform);
         let displacements: Vec<Point3<Real>> = reference

@@ -31,7 +31,7 @@ pub use gltf::parse_gltf;
 pub(crate) use obj::format_obj_with_material;
 pub use obj::{format_obj, parse_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};
-pub use raster::{Raster, front_heights};
+pub use raster::{FrontHit, Raster, front_heights, front_hits};
 
 /// Texture coordinates of a mesh (`v` up, as in OBJ and PLY; glTF's are flipped on reading):
 /// a `uv` array and, for each triangle of the mesh, the indices

@@ -40,7 +40,42 @@ impl Raster {
 /// edges included; triangles seen edge-on contribute nothing (their neighbours cover the
 /// samples).
 pub fn front_heights(mesh: &TriangleMesh, raster: &Raster) -> Vec<Real> {
-    let mut heights = vec![Real::NAN; raster.width * raster.height];
+    front_hits(mesh, raster)
+        .into_iter()
+        .map(|hit| hit.map_or(Real::NAN, |h| h.height))
+        .collect()
+}
+
+/// Where the front-most surface lies above one raster sample: its triangle and the sample's
+/// barycentric coordinates in it (from [`front_hits`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrontHit {
+    /// The triangle's index in the mesh.
+    pub triangle: usize,
+    /// The weights of its three corners (sum 1, each ≥ 0 up to rounding).
+    pub barycentric: [Real; 3],
+    /// The surface's height `z` there.
+    pub height: Real,
+}
+
+impl FrontHit {
+    /// A per-vertex attribute interpolated at the hit (`attributes[v]` for vertex `v`).
+    pub fn interpolate<T>(&self, mesh: &TriangleMesh, attributes: &[T]) -> T
+    where
+        T: Copy + std::ops::Mul<Real, Output = T> + std::ops::Add<Output = T>,
+    {
+        let [a, b, c] = mesh.triangles()[self.triangle];
+        let [wa, wb, wc] = self.barycentric;
+        attributes[a as usize] * wa + attributes[b as usize] * wb + attributes[c as usize] * wc
+    }
+}
+
+/// The front-most surface above every sample of the raster (see [`front_heights`]), as the
+/// triangle and barycentric coordinates there, so that any per-vertex attribute (a
+/// displacement field, a colour) can be carried to the raster; `None` where no triangle covers
+/// the sample.
+pub fn front_hits(mesh: &TriangleMesh, raster: &Raster) -> Vec<Option<FrontHit>> {
+    let mut hits: Vec<Option<FrontHit>> = vec![None; raster.width * raster.height];
     let to_grid = |x: Real, origin: Real| (x - origin) / raster.spacing;
     for k in 0..mesh.triangles().len() {
         let [a, b, c] = mesh.triangle(k);
@@ -73,12 +108,16 @@ pub fn front_heights(mesh: &TriangleMesh, raster: &Raster) -> Vec<Real> {
                     continue;
                 }
                 let z = wa * a.z + wb * b.z + wc * c.z;
-                let cell = &mut heights[j * raster.width + i];
-                if cell.is_nan() || z > *cell {
-                    *cell = z;
+                let cell = &mut hits[j * raster.width + i];
+                if cell.is_none_or(|h| z > h.height) {
+                    *cell = Some(FrontHit {
+                        triangle: k,
+                        barycentric: [wa, wb, wc],
+                        height: z,
+                    });
                 }
             }
         }
     }
-    heights
+    hits
 }

@@ -16,6 +16,7 @@ mod compare;
 mod depth;
 mod export;
 mod face;
+mod face_space;
 mod landmarker;
 mod landmarks;
 mod mesh;

@@ -520,14 +520,31 @@ fn front_heights_keep_the_front_most_surface() {
         height: 13,
     };
     let heights = front_heights(&mesh, &raster);
+    let hits = splineface::mesh::front_hits(&mesh, &raster);
     for j in 0..raster.height {
         for i in 0..raster.width {
             let p = raster.position(i, j);
             let h = heights[j * raster.width + i];
+            let hit = hits[j * raster.width + i];
             if (0.0..=4.0).contains(&p.x) && (0.0..=4.0).contains(&p.y) {
                 assert!((h - plane(p.x, p.y)).abs() < 1e-12, "at {p}: {h}");
+                // The hit is on the front square, and interpolating the vertex positions
+                // there gives the sample's point.
+                let hit = hit.unwrap();
+                assert!(
+                    hit.triangle >= 2,
+                    "at {p}: the back square's triangle {}",
+                    hit.triangle
+                );
+                let coords: Vec<_> = mesh.positions().iter().map(|v| v.coords).collect();
+                let q = hit.interpolate(&mesh, &coords);
+                assert!(
+                    (q - Point3::new(p.x, p.y, h).coords).norm() < 1e-12,
+                    "at {p}: {q}"
+                );
             } else {
                 assert!(h.is_nan(), "at {p}: {h}");
+                assert!(hit.is_none());
             }
         }
     }

@@ -46,7 +46,7 @@ fn face_difference(a: &ReferenceFace, b: &ReferenceFace) -> f64 {
 
 /// The height field `height` tessellated over a square wider than any face region, with the
 /// embedded reference's structure lifted onto it.
-fn synthetic_scan() -> ReferenceScan {
+pub(crate) fn synthetic_scan() -> ReferenceScan {
     let n = 121;
     let at = |k: usize| -150.0 + 300.0 * k as f64 / (n - 1) as f64;
     let positions: Vec<Point3<f64>> = (0..n * n)

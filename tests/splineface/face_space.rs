@@ -1,0 +1,186 @@
+//! The statistical face space on a reference: modes carried from per-vertex fields, members,
+//! the MAP fit to 3D landmarks and the dense fit to a mesh, on a synthetic scan with known
+//! answers.
+
+use std::sync::OnceLock;
+
+use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
+use splineface::face::{DenseFitOptions, FaceError, FaceSpace};
+use splineface::mesh::TriangleMesh;
+use splineface::reference::{ReferenceFace, ReferenceOptions, build_reference};
+use splineface::structure::POINT_COUNT;
+
+use crate::reference::synthetic_scan;
+
+/// The synthetic scan (already in the canonical frame) and the reference fitted to it.
+fn fixture() -> &'static (TriangleMesh, ReferenceFace) {
+    static FIXTURE: OnceLock<(TriangleMesh, ReferenceFace)> = OnceLock::new();
+    FIXTURE.get_or_init(|| {
+        let scan = synthetic_scan();
+        let reference =
+            build_reference(std::slice::from_ref(&scan), &ReferenceOptions::default(), "test").unwrap();
+        (scan.mesh, reference)
+    })
+}
+
+/// 68 distinct vertices spread over the middle of the scan (stand-ins for landmark vertices).
+fn landmarks(mesh: &TriangleMesh) -> Vec<usize> {
+    let near = |x: f64, y: f64| {
+        (0..mesh.positions().len())
+            .min_by(|&a, &b| {
+                let d = |k: usize| (mesh.positions()[k].x - x).powi(2) + (mesh.positions()[k].y - y).powi(2);
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap()
+    };
+    (0..68)
+        .map(|k| near(-40.0 + 10.0 * (k % 9) as f64, -50.0 + 12.0 * (k / 9) as f64))
+        .collect()
+}
+
+/// Per-vertex fields: `z` linear in `x` (exactly representable), `x` quadratic in `y` and `z`
+/// quadratic in `x` (not similarities, so the landmark fit can tell them apart from the pose).
+fn fields(mesh: &TriangleMesh) -> Vec<Vec<Vector3<f64>>> {
+    let f: [fn(&Point3<f64>) -> Vector3<f64>; 3] = [
+        |p| Vector3::new(0.0, 0.0, 0.1 * p.x),
+        |p| Vector3::new(0.001 * p.y * p.y, 0.0, 0.0),
+        |p| Vector3::new(0.0, 0.0, 0.002 * p.x * p.x),
+    ];
+    f.iter()
+        .map(|f| mesh.positions().iter().map(f).collect())
+        .collect()
+}
+
+fn space() -> FaceSpace {
+    let (mesh, reference) = fixture();
+    FaceSpace::from_displacements(reference, mesh, &landmarks(mesh), &fields(mesh), &[1.0, 1.0, 1.0]).unwrap()
+}
+
+#[test]
+fn a_field_the_knots_represent_is_carried_exactly() {
+    let (mesh, reference) = fixture();
+    let space = space();
+    let member = space.surfaces().surface(&[0.7, 0.0, 0.0]).unwrap();
+    let frame = reference.frame();
+    for i in 0..=10 {
+        for j in 0..=10 {
+            let (u, v) = (i as f64 / 10.0, j as f64 / 10.0);
+            let base = reference.surface().eval(u, v).unwrap();
+            let x = frame.position(u, v).x;
+            let expected = base + Vector3::new(0.0, 0.0, 0.7 * 0.1 * x);
+            let got = member.eval(u, v).unwrap();
+            assert!((got - expected).norm() < 1e-8, "({u}, {v}): {got} vs {expected}");
+        }
+    }
+    // The structure moves by the landmark vertices' displacements, reduced like the points.
+    let lm = landmarks(mesh);
+    let moved = space.structure(&[1.0, 0.0, 0.0]).unwrap();
+    let ibug: Vec<Point3<f64>> = lm.iter().map(|&v| Point3::from(fields(mesh)[0][v])).collect();
+    let expected = splineface::structure::from_ibug68(&ibug).unwrap();
+    for ((m, b), e) in moved.iter().zip(reference.structure()).zip(&expected) {
+        assert!(((m - b) - e.coords).norm() < 1e-12);
+    }
+}
+
+#[test]
+fn the_landmark_fit_recovers_weights_and_pose() {
+    let space = space();
+    let truth = [0.8, -1.3, 0.5];
+    let placement = Similarity3::from_parts(
+        Translation3::new(3.0, -2.0, 10.0),
+        UnitQuaternion::from_euler_angles(0.1, -0.2, 0.05),
+        1.3,
+    );
+    let target: Vec<Point3<f64>> = space
+        .structure(&truth)
+        .unwrap()
+        .iter()
+        .map(|p| placement * p)
+        .collect();
+    // A tiny noise: the prior barely acts.
+    let fit = space.fit_structure(&target, &[1.0; POINT_COUNT], 1e-6).unwrap();
+    for (w, t) in fit.weights.iter().zip(&truth) {
+        assert!((w - t).abs() < 1e-6, "{:?}", fit.weights);
+    }
+    assert!(fit.rms < 1e-6, "{}", fit.rms);
+    assert!((fit.placement.scaling() - 1.3).abs() < 1e-6);
+    // A huge noise: the prior wins, weights go to zero.
+    let fit = space.fit_structure(&target, &[1.0; POINT_COUNT], 1e6).unwrap();
+    assert!(fit.weights.iter().all(|w| w.abs() < 1e-3), "{:?}", fit.weights);
+}
+
+#[test]
+fn the_dense_fit_recovers_a_member_from_its_mesh() {
+    let (mesh, reference) = fixture();
+    let space = space();
+    let truth = [0.5, -0.8, 0.6];
+    let fields = fields(mesh);
+    let displaced: Vec<Point3<f64>> = mesh
+        .positions()
+        .iter()
+        .enumerate()
+        .map(|(v, p)| {
+            p + fields
+                .iter()
+                .zip(&truth)
+                .map(|(f, w)| f[v] * *w)
+                .sum::<Vector3<f64>>()
+        })
+        .collect();
+    let target = TriangleMesh::new(displaced, mesh.triangles().to_vec()).unwrap();
+    // Start from the landmark fit of a structure with the wrong weights.
+    let start_structure = space.structure(&[0.0, 0.0, 0.0]).unwrap();
+    let start = space
+        .fit_structure(&start_structure, &[1.0; POINT_COUNT], 1.0)
+        .unwrap();
+    let options = DenseFitOptions {
+        noise: 1e-3,
+        iterations: 30,
+        ..DenseFitOptions::default()
+    };
+    let fit = space.fit_surface(reference, &target, &start, &options).unwrap();
+    // Modes 0 and 2 move the surface along its normal and are recovered; mode 1 slides it
+    // within itself (x by a function of y on a height field), which no distance to the
+    // surface can see: the fit only has to find the same surface.
+    for k in [0, 2] {
+        assert!(
+            (fit.weights[k] - truth[k]).abs() < 0.05,
+            "{:?} against {truth:?}",
+            fit.weights
+        );
+    }
+    assert!(fit.rms < 0.1, "{}", fit.rms);
+}
+
+#[test]
+fn mismatched_inputs_are_refused() {
+    let (mesh, reference) = fixture();
+    let lm = landmarks(mesh);
+    let f = fields(mesh);
+    let build = |mesh: &TriangleMesh, lm: &[usize], f: &[Vec<Vector3<f64>>], s: &[f64]| {
+        FaceSpace::from_displacements(reference, mesh, lm, f, s)
+    };
+    let space_error = |r: Result<FaceSpace, FaceError>, needle: &str| match r {
+        Err(FaceError::Space(m)) => assert!(m.contains(needle), "{m}"),
+        other => panic!("expected a face-space error about {needle}, got {other:?}"),
+    };
+    space_error(build(mesh, &lm[..67], &f, &[1.0; 3]), "landmark");
+    space_error(build(mesh, &lm, &f, &[1.0; 2]), "deviations");
+    space_error(build(mesh, &lm, &f, &[1.0, 0.0, 1.0]), "deviation 0");
+    let mut short = f.clone();
+    short[1].pop();
+    space_error(build(mesh, &lm, &short, &[1.0; 3]), "mode 1");
+    let mut nan = f.clone();
+    nan[2][5].x = f64::NAN;
+    space_error(build(mesh, &lm, &nan, &[1.0; 3]), "not finite");
+    let lifted = mesh.transformed(&nalgebra::Affine3::from_matrix_unchecked(
+        nalgebra::Translation3::new(0.0, 0.0, 20.0).to_homogeneous(),
+    ));
+    space_error(build(&lifted, &lm, &f, &[1.0; 3]), "not the scan");
+    let space = space();
+    assert!(space.structure(&[1.0]).is_err());
+    assert!(matches!(
+        space.fit_structure(&space.structure(&[0.0; 3]).unwrap(), &[1.0; POINT_COUNT], 0.0),
+        Err(FaceError::Option { .. })
+    ));
+}
