@@ -41,7 +41,8 @@ fn landmarks(mesh: &TriangleMesh) -> Vec<usize> {
 /// Per-vertex fields: `z` linear in `x` (exactly representable), `x` quadratic in `y` and `z`
 /// quadratic in `x` (not similarities, so the landmark fit can tell them apart from the pose).
 fn fields(mesh: &TriangleMesh) -> Vec<Vec<Vector3<f64>>> {
-    let f: [fn(&Point3<f64>) -> Vector3<f64>; 3] = [
+    type Field = fn(&Point3<f64>) -> Vector3<f64>;
+    let f: [Field; 3] = [
         |p| Vector3::new(0.0, 0.0, 0.1 * p.x),
         |p| Vector3::new(0.001 * p.y * p.y, 0.0, 0.0),
         |p| Vector3::new(0.0, 0.0, 0.002 * p.x * p.x),
