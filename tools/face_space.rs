@@ -24,7 +24,7 @@ mod subjects;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use splineface::Real;
 use splineface::compare::{InnerFaceOptions, inner_face_score};
 use splineface::face::{Deformation, DenseFitOptions, FaceSpace, FaceSurface, MeshOptions, SpaceFit, Units};
@@ -63,37 +63,6 @@ fn parse_args() -> Result<Args> {
         bail!("--subjects and --modes must be positive");
     }
     Ok(args)
-}
-
-/// The ICT identity modes `0..count` as a face space on the reference, which must have been
-/// fitted to the ICT mean face (the embedded one is).
-fn ict_space(ict: &Ict, reference: &ReferenceFace, count: usize) -> Result<FaceSpace> {
-    let ibug: Vec<Point3<Real>> = ict
-        .landmarks
-        .iter()
-        .map(|&i| ict.neutral.positions()[i])
-        .collect();
-    let (to_canonical, _) = unify(&from_ibug68(&ibug)?)?;
-    let scan = ict.neutral.transformed(&nalgebra::Affine3::from_matrix_unchecked(
-        to_canonical.to_homogeneous(),
-    ));
-    let n = ict.neutral.positions().len();
-    let fields: Vec<Vec<Vector3<Real>>> = (0..count.min(ict.modes))
-        .map(|k| {
-            ict.identities[k * n * 3..(k + 1) * n * 3]
-                .chunks_exact(3)
-                .map(|m| to_canonical * Vector3::new(Real::from(m[0]), Real::from(m[1]), Real::from(m[2])))
-                .collect()
-        })
-        .collect();
-    let sigma = vec![1.0; fields.len()];
-    Ok(FaceSpace::from_displacements(
-        reference,
-        &scan,
-        &ict.landmarks,
-        &fields,
-        &sigma,
-    )?)
 }
 
 /// Truth → face over the truth's inner face, mean distance in mm.
@@ -235,7 +204,7 @@ fn main() -> Result<()> {
     let ict = Ict::load(&args.ict)?;
     let reference = ReferenceFace::embedded();
     let started = std::time::Instant::now();
-    let full = ict_space(&ict, reference, ict.modes)?;
+    let full = ict.face_space(reference, ict.modes)?;
     eprintln!(
         "space of {} modes built in {:.1} s",
         full.mode_count(),

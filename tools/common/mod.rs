@@ -182,6 +182,48 @@ impl Ict {
         })
     }
 
+    /// The identity modes `0..count` as a face space on `reference`, which must have been
+    /// fitted to the mean face (the embedded one is, and so is its `as_seen_in_photos()`
+    /// form, whose structure is the photo structure). Every mode's deviation is 1 (the
+    /// data's identities are `w ~ N(0, 1)`).
+    pub fn face_space(
+        &self,
+        reference: &splineface::reference::ReferenceFace,
+        count: usize,
+    ) -> Result<splineface::face::FaceSpace> {
+        let ibug: Vec<Point3<Real>> = self
+            .landmarks
+            .iter()
+            .map(|&i| self.neutral.positions()[i])
+            .collect();
+        let (to_canonical, _) = unify(&from_ibug68(&ibug)?)?;
+        let scan = self
+            .neutral
+            .transformed(&nalgebra::Affine3::from_matrix_unchecked(
+                to_canonical.to_homogeneous(),
+            ));
+        let n = self.neutral.positions().len();
+        let fields: Vec<Vec<nalgebra::Vector3<Real>>> = (0..count.min(self.modes))
+            .map(|k| {
+                self.identities[k * n * 3..(k + 1) * n * 3]
+                    .chunks_exact(3)
+                    .map(|m| {
+                        to_canonical
+                            * nalgebra::Vector3::new(Real::from(m[0]), Real::from(m[1]), Real::from(m[2]))
+                    })
+                    .collect()
+            })
+            .collect();
+        let sigma = vec![1.0; fields.len()];
+        Ok(splineface::face::FaceSpace::from_displacements(
+            reference,
+            &scan,
+            &self.landmarks,
+            &fields,
+            &sigma,
+        )?)
+    }
+
     /// `neutral + Σₖ wₖ·modeₖ`, unified by its structure; `weights` may be shorter than the
     /// modes (the rest are 0).
     pub fn subject(&self, weights: &[Real]) -> Result<Subject> {

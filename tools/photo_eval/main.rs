@@ -249,6 +249,40 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
+/// The face space's MAP fit to a reconstruction's estimated structure (contour points at the
+/// depth stage's weight), as a mesh and structure in the output units.
+fn space_face(
+    result: &Reconstruction,
+    space: &splineface::face::FaceSpace,
+    reference: &ReferenceFace,
+    noise: Real,
+) -> Result<(TriangleMesh, Vec<Point3<Real>>)> {
+    let contour = result.options.depth.contour_weight;
+    let weights: [Real; splineface::structure::POINT_COUNT] = std::array::from_fn(|k| {
+        if splineface::structure::POINTS[k].group == splineface::structure::Group::Contour {
+            contour
+        } else {
+            1.0
+        }
+    });
+    let fit = space.fit_structure(&result.depth.structure, &weights, noise)?;
+    let face = space.face(reference, &fit.weights)?;
+    let units = result.options.units;
+    let placement = nalgebra::Affine3::from_matrix_unchecked(fit.placement.to_homogeneous());
+    let mesh = face
+        .mesh(&MeshOptions::default())?
+        .mesh
+        .transformed(&placement)
+        .transformed(&units.transform());
+    let scale = units.per_canonical_unit();
+    let structure = face
+        .structure()
+        .iter()
+        .map(|p| (fit.placement * p) * scale)
+        .collect();
+    Ok((mesh, structure))
+}
+
 fn run_set(
     set: &Set<'_>,
     subject: &Subject,
@@ -766,6 +800,9 @@ struct Method {
     name: &'static str,
     options: PipelineOptions,
     vertex_structure: bool,
+    /// Return the face space's MAP fit to the pipeline's estimated structure, with this noise
+    /// per coordinate (canonical units), instead of the pipeline's face.
+    space: Option<Real>,
 }
 
 impl Method {
@@ -796,6 +833,7 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         name,
         options,
         vertex_structure: false,
+        space: None,
     };
     let all = vec![
         method("default", default),
@@ -818,6 +856,18 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("contour 1", with(&|o| o.depth.contour_weight = 1.0)),
         method("all photos", with(&|o| o.drop_disagreeing = false)),
         method("affine", with(&|o| o.deformation = Deformation::Affine)),
+        Method {
+            space: Some(1.5),
+            ..method("space ε1.5", default)
+        },
+        Method {
+            space: Some(3.0),
+            ..method("space ε3", default)
+        },
+        Method {
+            space: Some(6.0),
+            ..method("space ε6", default)
+        },
         Method {
             vertex_structure: true,
             ..method(
@@ -941,6 +991,9 @@ fn main() -> Result<()> {
         eprintln!("wrote {}", path.display());
         return Ok(());
     }
+    // The ICT identity space on the reference as the photo stages see it.
+    let seen = reference.as_seen_in_photos().into_owned();
+    let space = ict.face_space(&seen, ict.modes)?;
     // Every method on every set.
     let mut results: Vec<Vec<Outcome>> = Vec::new();
     for method in &methods {
@@ -948,13 +1001,17 @@ fn main() -> Result<()> {
         let mut outcomes = Vec::new();
         let chosen_reference = &*method.reference(reference)?;
         for set in &sets {
-            let (outcome, _) = run_set(
+            let (mut outcome, result) = run_set(
                 set,
                 &subjects[set.subject],
                 &mut landmarks,
                 chosen_reference,
                 options,
             )?;
+            if let (Some(noise), Some(result)) = (method.space, result) {
+                let (mesh, structure) = space_face(&result, &space, &seen, noise)?;
+                outcome.score = Some(score(&mesh, &structure, &subjects[set.subject])?);
+            }
             outcomes.push(outcome);
         }
         eprintln!(
@@ -1084,6 +1141,10 @@ fn main() -> Result<()> {
             .collect();
         write!(page, "| {} |", subject.name)?;
         for method in &methods {
+            if method.space.is_some() {
+                write!(page, " — |")?;
+                continue;
+            }
             let chosen = &*method.reference(reference)?;
             let a = run_set(&halves[0], subject, &mut landmarks, chosen, &method.options)?.1;
             let b = run_set(&halves[1], subject, &mut landmarks, chosen, &method.options)?.1;
