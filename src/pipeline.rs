@@ -91,6 +91,25 @@ pub struct PipelineOptions {
     /// Leave out photos whose landmarks mark other places than the other photos' do
     /// ([`crate::align::landmark_agreement`]; needs images and three photos or more).
     pub drop_disagreeing: bool,
+    /// Where the face's shape comes from.
+    pub shape: Shape,
+}
+
+/// Where the face's shape comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Shape {
+    /// The paper's way: the reference surface deformed to the estimated 3D structure
+    /// ([`PipelineOptions::deformation`], [`PipelineOptions::structure_weight`]).
+    Deformed,
+    /// The reference's face space ([`crate::face::FaceSpace`]) fitted jointly to the kept
+    /// photos' points ([`crate::face::FaceSpace::fit_photos`], the contour points at the depth
+    /// stage's weight) with noise `noise` per coordinate (canonical units); the depth stage
+    /// still chooses the photos and reports their poses. A reference without a space falls
+    /// back to [`Shape::Deformed`], and the report says so.
+    Space {
+        /// `ε`, canonical units.
+        noise: Real,
+    },
 }
 
 /// How far the surface follows the estimated structure: the weight `α` of
@@ -139,6 +158,7 @@ impl Default for PipelineOptions {
             min_photos: MIN_PHOTOS,
             drop_disagreeing: true,
             structure_weight: StructureWeight::Auto,
+            shape: Shape::Deformed,
         }
     }
 }
@@ -206,6 +226,10 @@ pub struct Reconstruction {
     /// The weight with which the surface follows the estimated structure
     /// ([`PipelineOptions::structure_weight`]), and why.
     pub structure_weight: (Real, String),
+    /// The face space's fit, when the shape came from it ([`Shape::Space`]).
+    pub space: Option<crate::face::PhotoSpaceFit>,
+    /// How the shape was made, in words (for the report).
+    pub shape: String,
     /// Wall time per stage, seconds, in order.
     pub timings: Vec<(String, Real)>,
     /// The options used.
@@ -351,8 +375,40 @@ pub fn reconstruct(
             }
         }
     };
-    let target = crate::face::shrunk_toward_reference(reference, &depth.structure, structure_weight)?;
-    let face = FaceSurface::deform(reference, &target, options.deformation)?;
+    let space = match options.shape {
+        Shape::Space { noise } => reference.face_space().map(|space| (space, noise)),
+        Shape::Deformed => None,
+    };
+    let (face, space_fit, shape) = match space {
+        Some((space, noise)) => {
+            let views: Vec<Vec<nalgebra::Point2<Real>>> =
+                kept.iter().map(|&k| inputs[k].points.y_up()).collect();
+            let weights = crate::structure::contour_weighted(options.depth.contour_weight);
+            let fit = space.fit_photos(&views, &weights, noise)?;
+            let face = space.face(reference, &fit.weights)?;
+            let shape = format!(
+                "the reference's face space ({} modes) fitted to the points of {} photos, noise {noise} units",
+                space.mode_count(),
+                views.len()
+            );
+            (face, Some(fit), shape)
+        }
+        None => {
+            let target = crate::face::shrunk_toward_reference(reference, &depth.structure, structure_weight)?;
+            let shape = match options.shape {
+                Shape::Space { .. } => {
+                    "the reference deformed to the estimated structure (the reference has no face space)"
+                        .to_owned()
+                }
+                Shape::Deformed => "the reference deformed to the estimated structure".to_owned(),
+            };
+            (
+                FaceSurface::deform(reference, &target, options.deformation)?,
+                None,
+                shape,
+            )
+        }
+    };
     let mesh = face.mesh(&options.mesh)?;
     let textured = if with_images {
         depth.most_frontal_photo().map(|k| {
@@ -375,6 +431,8 @@ pub fn reconstruct(
         textured,
         dropped,
         structure_weight: (structure_weight, weight_note),
+        space: space_fit,
+        shape,
         agreement: if with_images {
             names.into_iter().zip(agreement).collect()
         } else {
@@ -570,6 +628,9 @@ impl Reconstruction {
                 "seconds": r.seconds,
             })),
             "surface": {
+                "shape": self.shape,
+                "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
+                "space_rms_units": self.space.as_ref().map(|s| s.rms_units.clone()),
                 "structure_weight": self.structure_weight.0,
                 "structure_weight_reason": self.structure_weight.1,
                 "deformation": format!("{:?}", self.face.deformation()),

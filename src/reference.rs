@@ -43,7 +43,7 @@
 
 use std::sync::OnceLock;
 
-use nalgebra::{Point2, Point3};
+use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::Real;
@@ -217,11 +217,152 @@ pub struct ReferenceFace {
     surface: BSplineSurface,
     structure: Vec<Point3<Real>>,
     photo_structure: Option<PhotoStructure>,
+    space: Option<SpaceModes>,
     edges: Vec<[usize; 2]>,
     frame: FrontalFrame,
     clip: Vec<Point2<Real>>,
     fit: ReferenceFit,
     provenance: Provenance,
+}
+
+/// A face space's modes as a reference carries them (see [`crate::face::FaceSpace`]): per
+/// mode, its displacement of the control grid and of the 40 points, and its prior standard
+/// deviation. Grid displacements are stored as little-endian `f32` in base64 (a 32 × 32 grid
+/// with 60 modes is 0.7 MB of floats; as JSON numbers it would be five times that), and kept
+/// at `f32` precision in memory too, so that writing and reading back is exact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SpaceModes {
+    /// `grid[k]`: mode `k`'s displacement of every control point, row-major.
+    pub grid: Vec<Vec<Vector3<Real>>>,
+    /// `structure[k]`: mode `k`'s displacement of the 40 points.
+    pub structure: Vec<Vec<Vector3<Real>>>,
+    /// Each mode's prior standard deviation.
+    pub sigma: Vec<Real>,
+    /// Where the modes came from (data, licence).
+    pub note: String,
+}
+
+/// The serialised form of [`SpaceModes`].
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawSpace {
+    modes: usize,
+    sigma: Vec<Real>,
+    structure: Vec<Vec<Vector3<Real>>>,
+    /// `"f32le-base64"`.
+    grid_encoding: String,
+    grid: String,
+    note: String,
+}
+
+const GRID_ENCODING: &str = "f32le-base64";
+
+impl SpaceModes {
+    /// The modes with their grid displacements rounded to `f32` (what the file stores).
+    pub fn rounded(mut self) -> Self {
+        for mode in &mut self.grid {
+            for d in mode.iter_mut() {
+                *d = d.map(|c| Real::from(c as f32));
+            }
+        }
+        self
+    }
+
+    fn check(&self, controls: usize) -> Result<(), String> {
+        let k = self.sigma.len();
+        if self.grid.len() != k || self.structure.len() != k {
+            return Err(format!(
+                "space: {k} deviations, {} grid modes and {} structure modes",
+                self.grid.len(),
+                self.structure.len()
+            ));
+        }
+        if let Some(m) = self.sigma.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(format!(
+                "space: mode {m}'s deviation {} is not positive",
+                self.sigma[m]
+            ));
+        }
+        for m in 0..k {
+            if self.grid[m].len() != controls {
+                return Err(format!(
+                    "space: mode {m} moves {} control points; the grid has {controls}",
+                    self.grid[m].len()
+                ));
+            }
+            if self.structure[m].len() != POINT_COUNT {
+                return Err(format!(
+                    "space: mode {m} moves {} structure points, expected {POINT_COUNT}",
+                    self.structure[m].len()
+                ));
+            }
+            let finite = |v: &Vec<Vector3<Real>>| v.iter().all(|d| d.iter().all(|c| c.is_finite()));
+            if !finite(&self.grid[m]) || !finite(&self.structure[m]) {
+                return Err(format!("space: mode {m} has a displacement that is not finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl From<SpaceModes> for RawSpace {
+    fn from(s: SpaceModes) -> Self {
+        let mut bytes = Vec::with_capacity(s.grid.iter().map(|g| g.len() * 12).sum());
+        for d in s.grid.iter().flatten() {
+            for c in d.iter() {
+                bytes.extend_from_slice(&(*c as f32).to_le_bytes());
+            }
+        }
+        RawSpace {
+            modes: s.sigma.len(),
+            sigma: s.sigma,
+            structure: s.structure,
+            grid_encoding: GRID_ENCODING.to_owned(),
+            grid: base64::encode(bytes),
+            note: s.note,
+        }
+    }
+}
+
+impl RawSpace {
+    fn decode(self, controls: usize) -> Result<SpaceModes, String> {
+        if self.grid_encoding != GRID_ENCODING {
+            return Err(format!(
+                "space: grid encoding {:?} is not supported (expected {GRID_ENCODING:?})",
+                self.grid_encoding
+            ));
+        }
+        let bytes =
+            base64::decode(&self.grid).map_err(|e| format!("space: the grid is not valid base64 ({e})"))?;
+        let expected = self.modes * controls * 12;
+        if bytes.len() != expected {
+            return Err(format!(
+                "space: the grid holds {} bytes; {} modes of {controls} control points need {expected}",
+                bytes.len(),
+                self.modes
+            ));
+        }
+        let values: Vec<Real> = bytes
+            .chunks_exact(4)
+            .map(|c| Real::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+            .collect();
+        let grid = values
+            .chunks_exact(controls * 3)
+            .map(|mode| {
+                mode.chunks_exact(3)
+                    .map(|c| Vector3::new(c[0], c[1], c[2]))
+                    .collect()
+            })
+            .collect();
+        let space = SpaceModes {
+            grid,
+            structure: self.structure,
+            sigma: self.sigma,
+            note: self.note,
+        };
+        space.check(controls)?;
+        Ok(space)
+    }
 }
 
 /// Where the photo path puts a landmarker's points on a reference face: the 40-point structure
@@ -466,6 +607,7 @@ pub fn build_reference(
         surface,
         structure: mean,
         photo_structure: None,
+        space: None,
         edges,
         frame,
         clip,
@@ -533,6 +675,33 @@ impl ReferenceFace {
         Ok(self)
     }
 
+    /// The face space the reference carries, if any ([`crate::face::FaceSpace`]), on its
+    /// surface and [`ReferenceFace::structure`].
+    pub fn face_space(&self) -> Option<crate::face::FaceSpace> {
+        self.space.as_ref().map(|s| {
+            crate::face::FaceSpace::from_parts(self, s.grid.clone(), s.structure.clone(), s.sigma.clone())
+                .expect("modes checked when they were set")
+        })
+    }
+
+    /// The modes behind [`ReferenceFace::face_space`], if any.
+    pub fn space_modes(&self) -> Option<&SpaceModes> {
+        self.space.as_ref()
+    }
+
+    /// This reference with a face space (rounded to what the file stores,
+    /// [`SpaceModes::rounded`]), or without one for `None`.
+    ///
+    /// # Errors
+    /// A message when the modes do not match the grid or are not finite.
+    pub fn with_space(mut self, space: Option<SpaceModes>) -> Result<Self, String> {
+        if let Some(s) = &space {
+            s.check(self.surface.rows() * self.surface.cols())?;
+        }
+        self.space = space.map(SpaceModes::rounded);
+        Ok(self)
+    }
+
     /// The reference the photo stages use: [`ReferenceFace::photo_structure`] as its structure
     /// (a copy when the two differ).
     pub fn as_seen_in_photos(&self) -> std::borrow::Cow<'_, ReferenceFace> {
@@ -591,8 +760,9 @@ impl ReferenceFace {
 }
 
 const FORMAT: &str = "splineface/reference";
-/// Version 2 added the optional `photo_structure`; version 1 files still load.
-const VERSION: u32 = 2;
+/// Version 2 added the optional `photo_structure`, version 3 the optional `space`; older
+/// files still load.
+const VERSION: u32 = 3;
 
 fn check_points(points: &[Point3<Real>], what: &str) -> Result<(), String> {
     if points.len() != POINT_COUNT {
@@ -616,6 +786,8 @@ struct RawReference {
     structure: Vec<Point3<Real>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     photo_structure: Option<PhotoStructure>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    space: Option<RawSpace>,
     edges: Vec<[usize; 2]>,
     frame: FrontalFrame,
     clip: Vec<Point2<Real>>,
@@ -631,6 +803,7 @@ impl From<ReferenceFace> for RawReference {
             surface: r.surface,
             structure: r.structure,
             photo_structure: r.photo_structure,
+            space: r.space.map(RawSpace::from),
             edges: r.edges,
             frame: r.frame,
             clip: r.clip,
@@ -655,6 +828,11 @@ impl TryFrom<RawReference> for ReferenceFace {
         if raw.version < 2 && raw.photo_structure.is_some() {
             return Err("photo_structure needs format version 2".to_owned());
         }
+        if raw.version < 3 && raw.space.is_some() {
+            return Err("space needs format version 3".to_owned());
+        }
+        let controls = raw.surface.rows() * raw.surface.cols();
+        let space = raw.space.map(|s| s.decode(controls)).transpose()?;
         check_points(&raw.structure, "structure")?;
         if let Some(p) = &raw.photo_structure {
             check_points(&p.points, "photo_structure")?;
@@ -693,6 +871,7 @@ impl TryFrom<RawReference> for ReferenceFace {
             surface: raw.surface,
             structure: raw.structure,
             photo_structure: raw.photo_structure,
+            space,
             edges: raw.edges,
             frame: raw.frame,
             clip: raw.clip,

@@ -13,7 +13,8 @@
 //! the same way.
 //!
 //! Run: `cargo run --release --example face_space -- [--ict DIR] [--data DIR] [--subjects N]
-//! [--modes K]`.
+//! [--modes K]`; with `--write REFERENCE.json` it adds the 60 modes to that reference file (the
+//! ICT mean face's, as `tools/build_reference.sh` makes it) instead.
 
 #[path = "common/mod.rs"]
 mod common;
@@ -39,6 +40,8 @@ struct Args {
     data: PathBuf,
     subjects: usize,
     modes: usize,
+    /// Add the 60-mode space to this reference file (which must be the ICT mean face's) and stop.
+    write: Option<PathBuf>,
 }
 
 fn parse_args() -> Result<Args> {
@@ -47,6 +50,7 @@ fn parse_args() -> Result<Args> {
         data: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data/lps-head")),
         subjects: 10,
         modes: 40,
+        write: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -56,6 +60,7 @@ fn parse_args() -> Result<Args> {
             "--data" => args.data = value()?.into(),
             "--subjects" => args.subjects = value()?.parse()?,
             "--modes" => args.modes = value()?.parse()?,
+            "--write" => args.write = Some(value()?.into()),
             other => bail!("unknown argument {other}"),
         }
     }
@@ -202,6 +207,31 @@ fn evaluate(
 fn main() -> Result<()> {
     let args = parse_args()?;
     let ict = Ict::load(&args.ict)?;
+    if let Some(path) = &args.write {
+        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let reference = ReferenceFace::from_json(&text).with_context(|| format!("{}", path.display()))?;
+        let space = ict.face_space(&reference, ict.modes)?;
+        let note = format!(
+            "The {} identity modes of ICT-FaceKit (Copyright (c) 2020 USC Institute for Creative Technologies, MIT licence), \
+             each a per-vertex displacement of the mean face carried to this grid by tools/face_space --write; deviation 1 \
+             (the data's identities are w ~ N(0, 1)).",
+            space.mode_count()
+        );
+        let with_space = reference
+            .with_space(Some(space.to_modes(&note)))
+            .map_err(anyhow::Error::msg)?;
+        let json = with_space.to_json();
+        let tmp = path.with_extension("json.tmp");
+        std::fs::write(&tmp, &json)?;
+        std::fs::rename(&tmp, path)?;
+        eprintln!(
+            "wrote {} ({} bytes, {} modes)",
+            path.display(),
+            json.len(),
+            space.mode_count()
+        );
+        return Ok(());
+    }
     let reference = ReferenceFace::embedded();
     let started = std::time::Instant::now();
     let full = ict.face_space(reference, ict.modes)?;

@@ -40,6 +40,7 @@ mod lbfgs;
 mod pose;
 
 pub use pose::Pose;
+pub(crate) use pose::{closed_form_pose, refine_pose};
 
 use nalgebra::{Matrix3, Point2, Point3, Rotation3, Vector2, Vector3};
 
@@ -50,7 +51,7 @@ use crate::structure::{
     Group, LEFT_EYE_CENTRE, POINT_COUNT, POINTS, RIGHT_EYE_CENTRE, edge_lengths,
     multi_substructure_similarity, multi_substructure_similarity_gradient, substructures,
 };
-use pose::{closed_form_pose, refine_pose, reprojection_cost};
+use pose::reprojection_cost;
 
 /// A photo whose RMS reprojection error exceeds this, in canonical units (5% of the eye
 /// distance), and [`BAD_FIT_RATIO`] times the median over the photos (with three photos or
@@ -697,16 +698,7 @@ pub fn estimate_depth(
             expected: "between 0 and 1",
         });
     }
-    let point_weights: Vec<Real> = POINTS
-        .iter()
-        .map(|p| {
-            if p.group == Group::Contour {
-                options.contour_weight
-            } else {
-                1.0
-            }
-        })
-        .collect();
+    let point_weights: Vec<Real> = crate::structure::contour_weighted(options.contour_weight).to_vec();
     let frontal_points = &frontal.points;
     let frontal_radius = rms_radius(frontal_points.iter().map(|p| &p.coords));
     let views = photos

@@ -7,6 +7,7 @@ use nalgebra::{Point2, Point3, Similarity3, Vector3};
 use super::{DeformationReport, FaceError, FaceSurface};
 use crate::Real;
 use crate::bspline::{BSplineSurface, SpaceSamples, SurfaceSpace};
+use crate::depth::Pose;
 use crate::mesh::{ClosestPoints, Raster, TriangleMesh, front_hits};
 use crate::reference::ReferenceFace;
 use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
@@ -159,6 +160,61 @@ impl FaceSpace {
             },
             sigma: sigma.to_vec(),
         })
+    }
+
+    /// A space from its parts on `reference`: grid displacements (row-major, one vector per
+    /// control point), structure displacements (40 per mode) and deviations. The base is the
+    /// reference's surface and structure.
+    ///
+    /// # Errors
+    /// [`FaceError::Space`] when the counts do not match or a value is not finite;
+    /// [`FaceError::Kernel`] for a grid mode of the wrong size.
+    pub fn from_parts(
+        reference: &ReferenceFace,
+        grid: Vec<Vec<Vector3<Real>>>,
+        structure: Vec<Vec<Vector3<Real>>>,
+        sigma: Vec<Real>,
+    ) -> Result<Self, FaceError> {
+        if grid.len() != sigma.len() || structure.len() != sigma.len() {
+            return Err(FaceError::Space(format!(
+                "{} grid modes, {} structure modes and {} deviations",
+                grid.len(),
+                structure.len(),
+                sigma.len()
+            )));
+        }
+        if let Some(k) = sigma.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(FaceError::Space(format!(
+                "mode {k}: deviation {} is not positive",
+                sigma[k]
+            )));
+        }
+        if let Some(k) = structure
+            .iter()
+            .position(|m| m.len() != POINT_COUNT || m.iter().any(|d| !d.iter().all(|c| c.is_finite())))
+        {
+            return Err(FaceError::Space(format!(
+                "mode {k}: the structure needs 40 finite displacements"
+            )));
+        }
+        Ok(FaceSpace {
+            surfaces: SurfaceSpace::new(reference.surface().clone(), grid)?,
+            structure: SpaceSamples {
+                base: reference.structure().to_vec(),
+                modes: structure,
+            },
+            sigma,
+        })
+    }
+
+    /// The space's modes as a reference stores them ([`ReferenceFace::with_space`]).
+    pub fn to_modes(&self, note: &str) -> crate::reference::SpaceModes {
+        crate::reference::SpaceModes {
+            grid: self.surfaces.modes().to_vec(),
+            structure: self.structure.modes.clone(),
+            sigma: self.sigma.clone(),
+            note: note.to_owned(),
+        }
     }
 
     /// The surfaces of the space.
@@ -381,6 +437,171 @@ impl FaceSpace {
             fit.iterations = start.iterations + iteration + 1;
         }
         Ok(fit)
+    }
+}
+
+/// The joint fit of a [`FaceSpace`] to photos' 2D points, from [`FaceSpace::fit_photos`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhotoSpaceFit {
+    /// The identity weights shared by every photo.
+    pub weights: Vec<Real>,
+    /// Per photo: its scaled orthographic pose and where the structure's origin projects
+    /// (`y` up), so that point `X` is seen at `offset + s·P·R·X`.
+    pub poses: Vec<(Pose, Point2<Real>)>,
+    /// Per photo: the weighted RMS reprojection error, canonical units.
+    pub rms_units: Vec<Real>,
+    /// Alternations run.
+    pub iterations: usize,
+}
+
+impl FaceSpace {
+    /// The MAP fit of the space to photos' 2D points under scaled orthographic cameras:
+    /// identity weights `w` shared by all photos and a pose and offset per photo minimising
+    ///
+    /// ```text
+    /// Σᵢ Σⱼ ωⱼ ‖oᵢ + sᵢ P Rᵢ S(w)ⱼ − xᵢⱼ‖² / (sᵢ² ε²)  +  Σₖ wₖ² / σₖ²
+    /// ```
+    ///
+    /// (reprojection errors measured in canonical units, `ε` per coordinate), by alternating
+    /// the poses (closed form, then Levenberg–Marquardt, on centred points) and the weights
+    /// (linear, [`SpaceSamples::fit_weights`]) until the weights settle. `views[i]` are photo
+    /// `i`'s 40 points with `y` up ([`crate::align::PhotoPoints::y_up`]).
+    ///
+    /// # Errors
+    /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise that is not
+    /// positive or point weights that are negative or all zero; [`FaceError::Degenerate`]
+    /// when a photo's pose is not determined; [`FaceError::Kernel`] when the weights are not.
+    pub fn fit_photos(
+        &self,
+        views: &[Vec<Point2<Real>>],
+        point_weights: &[Real; POINT_COUNT],
+        noise: Real,
+    ) -> Result<PhotoSpaceFit, FaceError> {
+        let bad = |name: &'static str, value: String, expected: &'static str| {
+            Err(FaceError::Option {
+                name,
+                value,
+                expected,
+            })
+        };
+        if views.is_empty() {
+            return bad("views", "none".into(), "at least one photo");
+        }
+        if let Some(i) = views
+            .iter()
+            .position(|v| v.len() != POINT_COUNT || v.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())))
+        {
+            return bad("view", i.to_string(), "40 finite points");
+        }
+        if !(noise > 0.0 && noise.is_finite()) {
+            return bad("noise", noise.to_string(), "positive and finite");
+        }
+        let total: Real = point_weights.iter().sum();
+        if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || !(total > 0.0) {
+            return bad(
+                "point weight",
+                format!("{point_weights:?}"),
+                "finite, non-negative, not all zero",
+            );
+        }
+        let roots: Vec<Real> = point_weights.iter().map(|w| w.sqrt()).collect();
+        let centroid = |points: &[Point2<Real>]| {
+            points
+                .iter()
+                .zip(point_weights)
+                .fold(nalgebra::Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
+                / total
+        };
+        let ridge: Vec<Real> = self.sigma.iter().map(|s| (noise / s).powi(2)).collect();
+        let mut weights = vec![0.0; self.mode_count()];
+        let mut poses = vec![
+            (
+                Pose::from_yaw_pitch_roll_degrees(0.0, 0.0, 0.0, 1.0),
+                Point2::origin()
+            );
+            views.len()
+        ];
+        let mut iterations = 0;
+        for iteration in 0..100 {
+            iterations = iteration + 1;
+            // Poses for the current shape, on centred points (the offset is then closed form).
+            let shape = self.structure.member(&weights);
+            let shape_centre = shape
+                .iter()
+                .zip(point_weights)
+                .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
+                / total;
+            let centred: Vec<Point3<Real>> = shape.iter().map(|p| p - shape_centre).collect();
+            for (view, pose) in views.iter().zip(poses.iter_mut()) {
+                let view_centre = centroid(view);
+                let flat: Vec<Point2<Real>> = view.iter().map(|p| p - view_centre).collect();
+                let start = if iteration == 0 {
+                    crate::depth::closed_form_pose(&flat, &centred, point_weights).ok_or(
+                        FaceError::Degenerate("seen in a photo whose points do not fix a pose"),
+                    )?
+                } else {
+                    pose.0
+                };
+                let refined = crate::depth::refine_pose(start, &flat, &centred, point_weights);
+                let projected_centre = refined.project(&Point3::from(shape_centre));
+                pose.0 = refined;
+                pose.1 = Point2::from(view_centre - projected_centre.coords);
+            }
+            // Weights for the poses: every photo's points as 3D samples with z = 0, in
+            // canonical units (divided by the photo's scale).
+            let mut samples = SpaceSamples {
+                base: Vec::new(),
+                modes: vec![Vec::new(); self.mode_count()],
+            };
+            let mut targets = Vec::new();
+            for (view, (pose, offset)) in views.iter().zip(&poses) {
+                let flat = |v: Vector3<Real>| {
+                    let q = pose.rotation * v;
+                    Vector3::new(q.x, q.y, 0.0)
+                };
+                for j in 0..POINT_COUNT {
+                    let r = roots[j];
+                    samples
+                        .base
+                        .push(Point3::from(flat(self.structure.base[j].coords) * r));
+                    for (k, mode) in self.structure.modes.iter().enumerate() {
+                        samples.modes[k].push(flat(mode[j]) * r);
+                    }
+                    let x = (view[j] - offset) / pose.scale;
+                    targets.push(Point3::new(x.x * r, x.y * r, 0.0));
+                }
+            }
+            let next = samples.fit_weights(&targets, &ridge)?;
+            let change = next
+                .iter()
+                .zip(&weights)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, Real::max);
+            weights = next;
+            if change < 1e-7 {
+                break;
+            }
+        }
+        let shape = self.structure.member(&weights);
+        let rms_units = views
+            .iter()
+            .zip(&poses)
+            .map(|(view, (pose, offset))| {
+                let sum: Real = view
+                    .iter()
+                    .zip(&shape)
+                    .zip(point_weights)
+                    .map(|((x, p), w)| w * ((offset + pose.project(p).coords) - x).norm_squared())
+                    .sum();
+                (sum / total).sqrt() / pose.scale
+            })
+            .collect();
+        Ok(PhotoSpaceFit {
+            weights,
+            poses,
+            rms_units,
+            iterations,
+        })
     }
 }
 

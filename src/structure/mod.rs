@@ -204,6 +204,18 @@ pub fn from_ibug68<const D: usize>(ibug: &[Point<Real, D>]) -> Result<Vec<Point<
         .collect())
 }
 
+/// Per-point weights: `contour` on the 9 contour points, 1 elsewhere (the contour's points
+/// are where a landmarker's jaw points land, the least reliable of the 40).
+pub fn contour_weighted(contour: Real) -> [Real; POINT_COUNT] {
+    std::array::from_fn(|k| {
+        if POINTS[k].group == Group::Contour {
+            contour
+        } else {
+            1.0
+        }
+    })
+}
+
 /// The structure with every point moved to its mirror partner's place (`out[k] =
 /// points[mirror(k)]`): the labelling of the same points seen in a mirror. Applying it twice is
 /// the identity.

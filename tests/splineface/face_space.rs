@@ -185,3 +185,49 @@ fn mismatched_inputs_are_refused() {
         Err(FaceError::Option { .. })
     ));
 }
+
+#[test]
+fn the_photo_fit_recovers_weights_and_poses_from_projections() {
+    use nalgebra::Point2;
+    use splineface::depth::Pose;
+    let space = space();
+    let truth = [0.8, -1.3, 0.5];
+    let shape = space.structure(&truth).unwrap();
+    let poses = [
+        Pose::from_yaw_pitch_roll_degrees(-35.0, 5.0, 3.0, 4.0),
+        Pose::from_yaw_pitch_roll_degrees(0.0, -10.0, -5.0, 3.0),
+        Pose::from_yaw_pitch_roll_degrees(40.0, 8.0, 0.0, 5.0),
+    ];
+    let offsets = [
+        Point2::new(200.0, -100.0),
+        Point2::new(-50.0, 20.0),
+        Point2::new(0.0, 300.0),
+    ];
+    let views: Vec<Vec<Point2<f64>>> = poses
+        .iter()
+        .zip(&offsets)
+        .map(|(pose, o)| shape.iter().map(|p| o + pose.project(p).coords).collect())
+        .collect();
+    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e-6).unwrap();
+    for (w, t) in fit.weights.iter().zip(&truth) {
+        assert!((w - t).abs() < 1e-4, "{:?} against {truth:?}", fit.weights);
+    }
+    for (((pose, offset), truth_pose), truth_offset) in fit.poses.iter().zip(&poses).zip(&offsets) {
+        assert!(pose.angle_to_degrees(truth_pose) < 1e-3);
+        assert!((pose.scale - truth_pose.scale).abs() < 1e-5);
+        assert!((offset - truth_offset).norm() < 1e-3);
+    }
+    assert!(fit.rms_units.iter().all(|r| *r < 1e-5), "{:?}", fit.rms_units);
+    // A huge noise keeps the prior's mean.
+    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e6).unwrap();
+    assert!(fit.weights.iter().all(|w| w.abs() < 1e-3), "{:?}", fit.weights);
+    // Bad input.
+    assert!(matches!(
+        space.fit_photos(&[], &[1.0; POINT_COUNT], 1.0),
+        Err(FaceError::Option { .. })
+    ));
+    assert!(matches!(
+        space.fit_photos(&views, &[0.0; POINT_COUNT], 1.0),
+        Err(FaceError::Option { .. })
+    ));
+}

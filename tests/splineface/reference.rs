@@ -129,7 +129,12 @@ fn the_photo_structure_is_what_the_photo_stages_deform_from() {
     assert_eq!(seen.surface(), reference.surface());
     assert_eq!(seen.clip(), reference.clip());
     // Without one, the photo structure is the structure, and a version 1 file reads back.
-    let plain = reference.clone().with_photo_structure(None).unwrap();
+    let plain = reference
+        .clone()
+        .with_photo_structure(None)
+        .unwrap()
+        .with_space(None)
+        .unwrap();
     assert_eq!(plain.photo_structure(), plain.structure());
     assert!(matches!(plain.as_seen_in_photos(), std::borrow::Cow::Borrowed(_)));
     let mut old: serde_json::Value = serde_json::from_str(&plain.to_json()).unwrap();
@@ -147,6 +152,53 @@ fn the_photo_structure_is_what_the_photo_stages_deform_from() {
             .unwrap_err()
             .contains("39 points")
     );
+}
+
+#[test]
+fn the_embedded_reference_carries_a_face_space() {
+    let reference = ReferenceFace::embedded();
+    let modes = reference.space_modes().expect("the default carries one");
+    assert_eq!(modes.sigma.len(), 60);
+    assert!(modes.note.contains("ICT-FaceKit") && modes.note.contains("MIT"));
+    let space = reference.face_space().unwrap();
+    assert_eq!(space.mode_count(), 60);
+    // All weights zero: the reference itself.
+    let zero = vec![0.0; 60];
+    assert_eq!(space.surfaces().surface(&zero).unwrap(), *reference.surface());
+    assert_eq!(space.structure(&zero).unwrap(), reference.structure());
+    // The modes are real shape changes: a unit weight moves the surface by millimetres.
+    let mut one = zero.clone();
+    one[0] = 1.0;
+    let moved = space.surfaces().surface(&one).unwrap();
+    let d = (moved.eval(0.5, 0.5).unwrap() - reference.surface().eval(0.5, 0.5).unwrap()).norm();
+    assert!(d > 0.05 && d < 20.0, "{d}");
+    // On the photo stages' reference the space's base structure is the photo structure.
+    let seen = reference.as_seen_in_photos().face_space().unwrap();
+    assert_eq!(seen.structure(&zero).unwrap(), reference.photo_structure());
+    // Version 2 files cannot carry one; a grid of the wrong size or encoding is refused.
+    let mut json: serde_json::Value = serde_json::from_str(&reference.to_json()).unwrap();
+    let mut old = json.clone();
+    old["version"] = 2.into();
+    let err = ReferenceFace::from_json(&old.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("version 3"), "{err}");
+    let mut short = json.clone();
+    short["space"]["modes"] = 59.into();
+    let err = ReferenceFace::from_json(&short.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("bytes"), "{err}");
+    json["space"]["grid_encoding"] = "f64".into();
+    let err = ReferenceFace::from_json(&json.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("encoding"), "{err}");
+    // Modes that do not match the grid are refused when set.
+    let mut bad = modes.clone();
+    bad.grid[3].pop();
+    let err = reference.clone().with_space(Some(bad)).unwrap_err();
+    assert!(err.contains("mode 3"), "{err}");
 }
 
 #[test]
