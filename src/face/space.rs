@@ -497,7 +497,7 @@ impl FaceSpace {
             return bad("noise", noise.to_string(), "positive and finite");
         }
         let total: Real = point_weights.iter().sum();
-        if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || !(total > 0.0) {
+        if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || total <= 0.0 {
             return bad(
                 "point weight",
                 format!("{point_weights:?}"),
