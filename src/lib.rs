@@ -9,15 +9,17 @@
 //!
 //! * [`bspline`]: the geometry kernel. [`bspline::KnotVector`], the basis functions,
 //!   [`bspline::BSplineSurface`] (evaluation, derivatives, normals, dense grids, the sparse
-//!   basis matrix, affine maps, JSON) and [`bspline::SurfaceFit`] (least-squares control grids
-//!   from up to millions of scattered samples).
+//!   basis matrix, affine maps, JSON), [`bspline::SurfaceFit`] (least-squares control grids
+//!   from up to millions of scattered samples) and [`bspline::SurfaceSpace`] (linear spaces
+//!   of surfaces on one knot layout: a base grid plus displacement modes).
 //!
 //! * [`structure`]: the paper's 40-point face structure (points, groups, mirror partners), its
 //!   derivation from the 68-point iBUG annotation, the canonical frame, edges, sub-structures
 //!   and the multi-substructure SSIM.
 //!
-//! * [`reference`](mod@reference): the reference face (control grid, structure, edges, clip region) fitted to
-//!   scans, and the embedded default, [`reference::ReferenceFace::embedded`].
+//! * [`reference`](mod@reference): the reference face (control grid, structure, edges, clip
+//!   region, optionally a face space) fitted to scans, and the embedded default,
+//!   [`reference::ReferenceFace::embedded`], which carries ICT-FaceKit's 60 identity modes.
 //!
 //! * [`mesh`]: triangle meshes and their files (OBJ, PLY, glTF/GLB in; OBJ, PLY out) and the
 //!   frontal rasteriser; [`landmarks`]: landmark files (`.pts`, JSON, vertex indices);
@@ -32,8 +34,10 @@
 //!   batch alignment of the photos and their mirror images); [`align::landmark_agreement`]:
 //!   whether the photos' landmarks mark the same places of the face.
 //!
-//! * [`face`]: the reference grid deformed to an estimated structure (the paper's affine
-//!   `Tr_f`, or the measured-better local mode) and its clipped mesh; [`export`]: STEP, GLB and
+//! * [`face`]: the face surface: the reference grid deformed to an estimated structure (the
+//!   paper's affine `Tr_f`, or the local mode), or a member of the statistical face space
+//!   ([`face::FaceSpace`]) fitted to the photos' points, the default by measurement
+//!   ([`face::FaceSpace::fit_photos`]); and its clipped mesh; [`export`]: STEP, GLB and
 //!   textured OBJ; [`render`]: depth maps (EXR, 16-bit PNG), previews, heatmaps, synthetic
 //!   photos and photo-realistic ones ([`render::render_photo`]: a textured mesh, a perspective
 //!   camera, light and shadow); [`compare`]: a reconstruction against a ground truth, with the

@@ -175,7 +175,17 @@ struct OutputArgs {
     /// The distance between the eye centres in millimetres, for `--units mm`.
     #[arg(long, default_value_t = 63.0)]
     eye_distance: f64,
-    /// The surface deformation: `local` (default, by measurement) or `affine` (the paper's).
+    /// Where the face's shape comes from: `space` (default, by measurement: the reference's
+    /// face space fitted to the photos' points) or `deformed` (the reference deformed to the
+    /// estimated structure, the paper's way; also used when the reference has no space).
+    #[arg(long, default_value = "space")]
+    shape: String,
+    /// The face-space fit's landmark noise per coordinate, canonical units (larger keeps the
+    /// face nearer the mean).
+    #[arg(long, default_value_t = splineface::pipeline::Shape::DEFAULT_NOISE)]
+    space_noise: f64,
+    /// The surface deformation of `--shape deformed`: `local` (default, by measurement) or
+    /// `affine` (the paper's).
     #[arg(long, default_value = "local")]
     deformation: String,
     /// Mesh vertex spacing, canonical units.
@@ -209,6 +219,16 @@ impl OutputArgs {
             "affine" => Deformation::Affine,
             other => bail!("--deformation `{other}`: expected local or affine"),
         };
+        if !(self.space_noise > 0.0 && self.space_noise.is_finite()) {
+            bail!("--space-noise {} must be positive", self.space_noise);
+        }
+        let shape = match self.shape.as_str() {
+            "space" => splineface::pipeline::Shape::Space {
+                noise: self.space_noise,
+            },
+            "deformed" => splineface::pipeline::Shape::Deformed,
+            other => bail!("--shape `{other}`: expected space or deformed"),
+        };
         if !(self.spacing >= 0.1 && self.spacing <= 20.0) {
             bail!(
                 "--spacing {} must be between 0.1 and 20 canonical units",
@@ -228,6 +248,7 @@ impl OutputArgs {
             units,
             min_photos: self.min_photos,
             deformation,
+            shape,
             mesh: MeshOptions {
                 spacing: self.spacing,
             },

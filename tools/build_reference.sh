@@ -8,7 +8,9 @@
 #    points on that face), from photo-realistic renders of it. This step needs dlib's model
 #    (../shared/models, or tools/fetch-models) and ../shared/data/{lps-head,dlib-faces}; without
 #    them the reference is written without a photo structure (the photo stages then deform
-#    from the landmark vertices).
+#    from the landmark vertices);
+# 3. tools/face_space --write: the face space (ICT-FaceKit's 60 identity modes on the grid),
+#    from ICT_FACE_DIR's identities.f32.
 #
 # Usage: tools/build_reference.sh [ICT_FACE_DIR]
 #   ICT_FACE_DIR holds neutral_face.obj and landmarks68.txt (default: ../shared/data/ict-face).
@@ -31,3 +33,4 @@ if [[ -f "$model" && -d ../shared/data/lps-head && -d ../shared/data/dlib-faces 
 else
     echo "warning: $model or ../shared/data missing: no photo structure measured" >&2
 fi
+cargo run --release --quiet --example face_space -- --ict "$dir" --write reference/ict-mean-face.json

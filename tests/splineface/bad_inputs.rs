@@ -151,7 +151,12 @@ const CORPUS: &[(&str, Kind, &str)] = &[
     (
         "future-reference.json",
         Reference,
-        "format version 99 is not supported (this build reads versions 1 to 2)",
+        "format version 99 is not supported (this build reads versions 1 to 3)",
+    ),
+    (
+        "short-space-reference.json",
+        Reference,
+        "space: the grid holds 12276 bytes; 1 modes of 1024 control points need 12288",
     ),
     ("empty-surface.json", Surface, "the file is empty"),
     (

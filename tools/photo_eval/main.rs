@@ -249,59 +249,8 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
-/// The modes of the face space the space methods use (see `main`).
+/// The modes of the face space the methods may use (see `Method::reference`).
 const SPACE_MODES: usize = 40;
-
-/// The face space's MAP fit to a reconstruction's estimated structure (contour points at the
-/// depth stage's weight), as a mesh and structure in the output units.
-fn space_face(
-    result: &Reconstruction,
-    space: &splineface::face::FaceSpace,
-    reference: &ReferenceFace,
-    noise: Real,
-) -> Result<(TriangleMesh, Vec<Point3<Real>>)> {
-    let weights = splineface::structure::contour_weighted(result.options.depth.contour_weight);
-    let fit = space.fit_structure(&result.depth.structure, &weights, noise)?;
-    let face = space.face(reference, &fit.weights)?;
-    let units = result.options.units;
-    let placement = nalgebra::Affine3::from_matrix_unchecked(fit.placement.to_homogeneous());
-    let mesh = face
-        .mesh(&MeshOptions::default())?
-        .mesh
-        .transformed(&placement)
-        .transformed(&units.transform());
-    let scale = units.per_canonical_unit();
-    let structure = face
-        .structure()
-        .iter()
-        .map(|p| (fit.placement * p) * scale)
-        .collect();
-    Ok((mesh, structure))
-}
-
-/// The face space's joint MAP fit to the kept photos' points (`y` up), as a mesh and
-/// structure in the output units.
-fn space_photo_face(
-    result: &Reconstruction,
-    views: &[Vec<Point2<Real>>],
-    space: &splineface::face::FaceSpace,
-    reference: &ReferenceFace,
-    noise: Real,
-) -> Result<(TriangleMesh, Vec<Point3<Real>>)> {
-    let fit = space.fit_photos(
-        views,
-        &splineface::structure::contour_weighted(result.options.depth.contour_weight),
-        noise,
-    )?;
-    let face = space.face(reference, &fit.weights)?;
-    let units = result.options.units;
-    let mesh = face
-        .mesh(&MeshOptions::default())?
-        .mesh
-        .transformed(&units.transform());
-    let scale = units.per_canonical_unit();
-    Ok((mesh, face.structure().iter().map(|p| p * scale).collect()))
-}
 
 fn run_set(
     set: &Set<'_>,
@@ -820,32 +769,32 @@ struct Method {
     name: &'static str,
     options: PipelineOptions,
     vertex_structure: bool,
-    /// Return the face space's MAP fit to the pipeline's estimated structure, with this noise
-    /// per coordinate (canonical units), instead of the pipeline's face.
-    space: Option<Real>,
-    /// Return the face space's joint MAP fit to the 2D points of the photos the pipeline kept,
-    /// with this noise per coordinate (canonical units).
-    space_photos: Option<Real>,
 }
 
 impl Method {
-    fn reference<'a>(&self, reference: &'a ReferenceFace) -> Result<std::borrow::Cow<'a, ReferenceFace>> {
-        Ok(if self.vertex_structure {
-            std::borrow::Cow::Owned(
-                reference
-                    .clone()
-                    .with_photo_structure(None)
-                    .map_err(anyhow::Error::msg)?,
-            )
-        } else {
-            std::borrow::Cow::Borrowed(reference)
-        })
+    /// The reference the method runs on: the given one with its face space cut to the first
+    /// `SPACE_MODES` modes (the ICT subjects are drawn with all 60, so the space must
+    /// generalise, not recall; the scan is outside it anyway), and without its photo structure
+    /// for `vertex_structure`.
+    fn reference(&self, reference: &ReferenceFace) -> Result<ReferenceFace> {
+        let mut chosen = reference.clone();
+        if let Some(modes) = reference.space_modes() {
+            let mut cut = modes.clone();
+            cut.grid.truncate(SPACE_MODES);
+            cut.structure.truncate(SPACE_MODES);
+            cut.sigma.truncate(SPACE_MODES);
+            chosen = chosen.with_space(Some(cut)).map_err(anyhow::Error::msg)?;
+        }
+        if self.vertex_structure {
+            chosen = chosen.with_photo_structure(None).map_err(anyhow::Error::msg)?;
+        }
+        Ok(chosen)
     }
 }
 
 /// The methods compared: the default first, then one change from it each.
 fn methods(names: &[String]) -> Result<Vec<Method>> {
-    use splineface::pipeline::StructureWeight;
+    use splineface::pipeline::{Shape, StructureWeight};
     let default = PipelineOptions::default();
     let with = |f: &dyn Fn(&mut PipelineOptions)| {
         let mut o = default;
@@ -856,8 +805,6 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         name,
         options,
         vertex_structure: false,
-        space: None,
-        space_photos: None,
     };
     let all = vec![
         method("default", default),
@@ -880,34 +827,10 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("contour 1", with(&|o| o.depth.contour_weight = 1.0)),
         method("all photos", with(&|o| o.drop_disagreeing = false)),
         method("affine", with(&|o| o.deformation = Deformation::Affine)),
-        Method {
-            space: Some(1.5),
-            ..method("space ε1.5", default)
-        },
-        Method {
-            space: Some(3.0),
-            ..method("space ε3", default)
-        },
-        Method {
-            space: Some(6.0),
-            ..method("space ε6", default)
-        },
-        Method {
-            space_photos: Some(1.0),
-            ..method("space 2D ε1", default)
-        },
-        Method {
-            space_photos: Some(2.0),
-            ..method("space 2D ε2", default)
-        },
-        Method {
-            space_photos: Some(4.0),
-            ..method("space 2D ε4", default)
-        },
-        Method {
-            space_photos: Some(8.0),
-            ..method("space 2D ε8", default)
-        },
+        method("deformed", with(&|o| o.shape = Shape::Deformed)),
+        method("space ε2", with(&|o| o.shape = Shape::Space { noise: 2.0 })),
+        method("space ε4", with(&|o| o.shape = Shape::Space { noise: 4.0 })),
+        method("space ε8", with(&|o| o.shape = Shape::Space { noise: 8.0 })),
         Method {
             vertex_structure: true,
             ..method(
@@ -1031,40 +954,20 @@ fn main() -> Result<()> {
         eprintln!("wrote {}", path.display());
         return Ok(());
     }
-    // The ICT identity space on the reference as the photo stages see it, from the first
-    // `SPACE_MODES` modes only: the ICT subjects are drawn with all 60, so the space must
-    // generalise, not recall (the scan is outside it anyway).
-    let seen = reference.as_seen_in_photos().into_owned();
-    let space = ict.face_space(&seen, SPACE_MODES)?;
     // Every method on every set.
     let mut results: Vec<Vec<Outcome>> = Vec::new();
     for method in &methods {
         let (name, options) = (method.name, &method.options);
         let mut outcomes = Vec::new();
-        let chosen_reference = &*method.reference(reference)?;
+        let chosen_reference = &method.reference(reference)?;
         for set in &sets {
-            let (mut outcome, result) = run_set(
+            let (outcome, _) = run_set(
                 set,
                 &subjects[set.subject],
                 &mut landmarks,
                 chosen_reference,
                 options,
             )?;
-            if let (Some(noise), Some(result)) = (method.space, &result) {
-                let (mesh, structure) = space_face(result, &space, &seen, noise)?;
-                outcome.score = Some(score(&mesh, &structure, &subjects[set.subject])?);
-            }
-            if let (Some(noise), Some(result)) = (method.space_photos, &result) {
-                let kept: Vec<Vec<Point2<Real>>> = set
-                    .photos
-                    .iter()
-                    .filter(|(_, photo)| result.depth.photos.iter().any(|p| p.name == photo.name))
-                    .filter_map(|(key, photo)| landmarks.of(key, photo))
-                    .map(|ibug| Ok(PhotoPoints::from_ibug68("", &ibug)?.y_up()))
-                    .collect::<Result<_>>()?;
-                let (mesh, structure) = space_photo_face(result, &kept, &space, &seen, noise)?;
-                outcome.score = Some(score(&mesh, &structure, &subjects[set.subject])?);
-            }
             outcomes.push(outcome);
         }
         eprintln!(
@@ -1194,11 +1097,7 @@ fn main() -> Result<()> {
             .collect();
         write!(page, "| {} |", subject.name)?;
         for method in &methods {
-            if method.space.is_some() || method.space_photos.is_some() {
-                write!(page, " — |")?;
-                continue;
-            }
-            let chosen = &*method.reference(reference)?;
+            let chosen = &method.reference(reference)?;
             let a = run_set(&halves[0], subject, &mut landmarks, chosen, &method.options)?.1;
             let b = run_set(&halves[1], subject, &mut landmarks, chosen, &method.options)?.1;
             match (a, b) {
@@ -1215,7 +1114,7 @@ fn main() -> Result<()> {
         &sets[0],
         &subjects[0],
         &mut landmarks,
-        reference,
+        &methods[0].reference(reference)?,
         &methods[0].options,
         &mean_face,
         &args.out,
