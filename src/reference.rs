@@ -258,6 +258,17 @@ struct RawSpace {
 const GRID_ENCODING: &str = "f32le-base64";
 
 impl SpaceModes {
+    /// The first `k` modes only (all of them when there are fewer).
+    pub fn truncated(&self, k: usize) -> Self {
+        let k = k.min(self.sigma.len());
+        SpaceModes {
+            grid: self.grid[..k].to_vec(),
+            structure: self.structure[..k].to_vec(),
+            sigma: self.sigma[..k].to_vec(),
+            note: format!("{} (the first {k} modes)", self.note),
+        }
+    }
+
     /// The modes with their grid displacements rounded to `f32` (what the file stores).
     pub fn rounded(mut self) -> Self {
         for mode in &mut self.grid {

@@ -543,7 +543,7 @@ fn the_evaluation_harness_runs() {
     assert!(page.contains("cargo run --release --example eval -- --quick"));
     let plot = image::open(dir.join("error-vs-photos.png")).unwrap();
     assert_eq!((plot.width(), plot.height()), (640, 400));
-    // The default beats the mean face on the mean depth error, subject by subject.
+    // The default beats the mean face on the inner-face error (the table's first column).
     let mean_of = |name: &str| -> f64 {
         let line = page
             .lines()

@@ -779,11 +779,9 @@ impl Method {
     fn reference(&self, reference: &ReferenceFace) -> Result<ReferenceFace> {
         let mut chosen = reference.clone();
         if let Some(modes) = reference.space_modes() {
-            let mut cut = modes.clone();
-            cut.grid.truncate(SPACE_MODES);
-            cut.structure.truncate(SPACE_MODES);
-            cut.sigma.truncate(SPACE_MODES);
-            chosen = chosen.with_space(Some(cut)).map_err(anyhow::Error::msg)?;
+            chosen = chosen
+                .with_space(Some(modes.truncated(SPACE_MODES)))
+                .map_err(anyhow::Error::msg)?;
         }
         if self.vertex_structure {
             chosen = chosen.with_photo_structure(None).map_err(anyhow::Error::msg)?;
