@@ -380,19 +380,8 @@ impl SurfaceSpace {
         if params.is_empty() {
             return Err(BSplineError::NoSamples);
         }
-        if targets.len() != params.len() {
-            return Err(BSplineError::SampleCountMismatch {
-                params: params.len(),
-                values: targets.len(),
-                what: "points",
-            });
-        }
-        if let Some(index) = targets
-            .iter()
-            .position(|t| !t.coords.iter().all(|c| c.is_finite()))
-        {
-            return Err(BSplineError::NonFiniteSample { index });
-        }
+        // The targets are checked by `SpaceSamples::fit_weights`; the parameters here, so that
+        // an error names the sample.
         for (index, &[u, v]) in params.iter().enumerate() {
             super::surface::check_parameter(self.base.knots_u(), self.base.knots_v(), u, v).map_err(|e| {
                 BSplineError::InvalidSampleParameter {

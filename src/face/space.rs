@@ -338,11 +338,7 @@ impl FaceSpace {
             let eps = noise / map.scaling();
             let ridge: Vec<Real> = self.sigma.iter().map(|s| (eps / s).powi(2)).collect();
             let next = scaled.fit_weights(&pulled, &ridge)?;
-            let change = next
-                .iter()
-                .zip(&weights)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, Real::max);
+            let change = largest_change(&next, &weights);
             weights = next;
             if change < 1e-9 {
                 break;
@@ -572,11 +568,7 @@ impl FaceSpace {
                 }
             }
             let next = samples.fit_weights(&targets, &ridge)?;
-            let change = next
-                .iter()
-                .zip(&weights)
-                .map(|(a, b)| (a - b).abs())
-                .fold(0.0, Real::max);
+            let change = largest_change(&next, &weights);
             weights = next;
             if change < 1e-7 {
                 break;
@@ -603,6 +595,14 @@ impl FaceSpace {
             iterations,
         })
     }
+}
+
+/// The largest change of any weight between two iterations.
+fn largest_change(next: &[Real], previous: &[Real]) -> Real {
+    next.iter()
+        .zip(previous)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, Real::max)
 }
 
 /// Options of [`FaceSpace::fit_surface`].
