@@ -231,3 +231,66 @@ fn the_photo_fit_recovers_weights_and_poses_from_projections() {
         Err(FaceError::Option { .. })
     ));
 }
+
+/// The embedded space is ICT-FaceKit's identity space: its structure of `w` is the one ICT's
+/// own vertices give (exactly), and its surface of `w` lies on ICT's mesh of `w` to within the
+/// reference's own fitting residual.
+#[test]
+#[ignore = "needs ../shared/data/ict-face (not part of the repository)"]
+fn the_embedded_space_is_ictfacekits_identity_space() {
+    use splineface::landmarks::read_vertex_indices;
+    use splineface::mesh::{ClosestPoints, read_mesh};
+    use splineface::structure::{from_ibug68, unify};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/ict-face");
+    let neutral = read_mesh(&dir.join("neutral_face.obj")).unwrap();
+    let n = neutral.positions().len();
+    let landmarks = read_vertex_indices(&dir.join("landmarks68.txt"), 68, n).unwrap();
+    let bytes = std::fs::read(dir.join("identities.f32")).unwrap();
+    let identities: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let ibug: Vec<Point3<f64>> = landmarks.iter().map(|&i| neutral.positions()[i]).collect();
+    let (to_canonical, _) = unify(&from_ibug68(&ibug).unwrap()).unwrap();
+    let reference = ReferenceFace::embedded();
+    let space = reference.face_space().unwrap();
+    let mut rng = crate::common::Lcg(5);
+    let w: Vec<f64> = (0..60).map(|_| rng.gaussian()).collect();
+    let positions: Vec<Point3<f64>> = (0..n)
+        .map(|v| {
+            let offset: Vector3<f64> = (0..60)
+                .map(|k| {
+                    let m = &identities[(k * n + v) * 3..(k * n + v) * 3 + 3];
+                    Vector3::new(f64::from(m[0]), f64::from(m[1]), f64::from(m[2])) * w[k]
+                })
+                .sum();
+            to_canonical * (neutral.positions()[v] + offset)
+        })
+        .collect();
+    let ibug: Vec<Point3<f64>> = landmarks.iter().map(|&i| positions[i]).collect();
+    let expected = from_ibug68(&ibug).unwrap();
+    for (a, b) in space.structure(&w).unwrap().iter().zip(&expected) {
+        assert!((a - b).norm() < 1e-9, "{a} vs {b}");
+    }
+    let mesh = TriangleMesh::new(positions, neutral.triangles().to_vec()).unwrap();
+    let closest = ClosestPoints::new(&mesh);
+    let member = space.surfaces().surface(&w).unwrap();
+    let mut distances = Vec::new();
+    for i in 0..=40 {
+        for j in 0..=40 {
+            let (u, v) = (i as f64 / 40.0, j as f64 / 40.0);
+            if reference.in_face_region(u, v) {
+                distances.push(closest.closest(&member.eval(u, v).unwrap()).distance);
+            }
+        }
+    }
+    distances.sort_by(f64::total_cmp);
+    let median = distances[distances.len() / 2];
+    // The reference's own grid lies within its fit's residuals of the mean face; a member
+    // should be as close to its mesh (a few hundredths of a unit), far below a unit.
+    assert!(
+        median < 0.1,
+        "median {median} (the reference fit's: {})",
+        reference.fit().median
+    );
+}

@@ -834,6 +834,7 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             ..method(
                 "issue-16 start",
                 with(&|o| {
+                    o.shape = Shape::Deformed;
                     o.structure_weight = StructureWeight::Fixed(1.0);
                     o.depth.contour_weight = 1.0;
                     o.drop_disagreeing = false;
