@@ -2,7 +2,9 @@
 //! ±60°, pitch ±25°, roll ±15°, landmark noise 1% of the eye distance), the whole estimation
 //! (points-only frontal structure, then depth). Target (issue 4): ≤ 20 ms. `paper (Fixed)` is
 //! the paper's method (frontal `x, y` kept) as the baseline in the same run; `frontal only` is
-//! the Procrustes part alone.
+//! the Procrustes part alone. `face space (60 modes)` is the default shape's joint fit of the
+//! embedded reference's face space to the same photos (`FaceSpace::fit_photos`; target, issue
+//! 17: ≤ 30 ms), beside the depth stage it follows.
 //!
 //! Run: `cargo bench --bench depth`.
 
@@ -79,6 +81,21 @@ fn bench(c: &mut Criterion) {
             })
         });
     }
+    let reference = ReferenceFace::embedded().as_seen_in_photos();
+    let space = reference.face_space().expect("the default carries a face space");
+    let views: Vec<Vec<Point2<f64>>> = photos.iter().map(PhotoPoints::y_up).collect();
+    let weights = splineface::structure::contour_weighted(DepthOptions::default().contour_weight);
+    group.bench_function("face space (60 modes)", |b| {
+        b.iter(|| {
+            space
+                .fit_photos(
+                    black_box(&views),
+                    &weights,
+                    splineface::pipeline::Shape::DEFAULT_NOISE,
+                )
+                .unwrap()
+        })
+    });
     group.finish();
 }
 

@@ -142,20 +142,7 @@ impl SpaceSamples {
             }
             normal[(a, a)] += ridge[a];
         }
-        // Dependent modes make the normal matrix singular to rounding; refuse rather than
-        // return weights that rounding chose. The threshold is relative to the largest
-        // diagonal entry.
-        let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
-        let cholesky = nalgebra::linalg::Cholesky::new(normal);
-        let ok = scale > 0.0
-            && cholesky.as_ref().is_some_and(|c| {
-                let l = c.l_dirty();
-                (0..k).all(|a| l[(a, a)] * l[(a, a)] > 1e-12 * scale)
-            });
-        match cholesky {
-            Some(c) if ok => Ok(c.solve(&rhs).iter().copied().collect()),
-            _ => Err(BSplineError::ModesUnderdetermined),
-        }
+        solve_normal_equations(normal, &rhs)
     }
 }
 
@@ -391,5 +378,26 @@ impl SurfaceSpace {
             })?;
         }
         self.sample(params)?.fit_weights(targets, ridge)
+    }
+}
+
+/// Solves the symmetric positive definite normal equations of a weights fit by Cholesky, or
+/// refuses: dependent modes make the matrix singular to rounding, and weights that rounding
+/// chose would be meaningless (the threshold is relative to the largest diagonal entry).
+pub(crate) fn solve_normal_equations(
+    normal: DMatrix<Real>,
+    rhs: &DVector<Real>,
+) -> Result<Vec<Real>, BSplineError> {
+    let k = normal.nrows();
+    let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
+    let cholesky = nalgebra::linalg::Cholesky::new(normal);
+    let ok = scale > 0.0
+        && cholesky.as_ref().is_some_and(|c| {
+            let l = c.l_dirty();
+            (0..k).all(|a| l[(a, a)] * l[(a, a)] > 1e-12 * scale)
+        });
+    match cholesky {
+        Some(c) if ok => Ok(c.solve(rhs).iter().copied().collect()),
+        _ => Err(BSplineError::ModesUnderdetermined),
     }
 }

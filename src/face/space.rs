@@ -500,7 +500,6 @@ impl FaceSpace {
                 "finite, non-negative, not all zero",
             );
         }
-        let roots: Vec<Real> = point_weights.iter().map(|w| w.sqrt()).collect();
         let centroid = |points: &[Point2<Real>]| {
             points
                 .iter()
@@ -543,31 +542,48 @@ impl FaceSpace {
                 pose.0 = refined;
                 pose.1 = Point2::from(view_centre - projected_centre.coords);
             }
-            // Weights for the poses: every photo's points as 3D samples with z = 0, in
-            // canonical units (divided by the photo's scale).
-            let mut samples = SpaceSamples {
-                base: Vec::new(),
-                modes: vec![Vec::new(); self.mode_count()],
-            };
-            let mut targets = Vec::new();
+            // Weights for the poses. With every photo's residual in canonical units,
+            // rᵢⱼ = P Rᵢ S(w)ⱼ − (xᵢⱼ − oᵢ)/sᵢ, the normal equations only need, per point,
+            // Mⱼ-free sums over the photos: Σᵢ Rᵢᵀ Pᵀ P Rᵢ (one 3 × 3 matrix for all points) and
+            // Σᵢ Rᵢᵀ Pᵀ (xᵢⱼ − oᵢ)/sᵢ (one vector per point), so that the cost does not grow
+            // with the number of photos.
+            let mut m = nalgebra::Matrix3::<Real>::zeros();
+            let mut pulled = vec![Vector3::<Real>::zeros(); POINT_COUNT];
             for (view, (pose, offset)) in views.iter().zip(&poses) {
-                let flat = |v: Vector3<Real>| {
-                    let q = pose.rotation * v;
-                    Vector3::new(q.x, q.y, 0.0)
-                };
+                let r = pose.rotation.matrix();
+                let rows = r.fixed_rows::<2>(0);
+                m += rows.transpose() * rows;
                 for j in 0..POINT_COUNT {
-                    let r = roots[j];
-                    samples
-                        .base
-                        .push(Point3::from(flat(self.structure.base[j].coords) * r));
-                    for (k, mode) in self.structure.modes.iter().enumerate() {
-                        samples.modes[k].push(flat(mode[j]) * r);
-                    }
                     let x = (view[j] - offset) / pose.scale;
-                    targets.push(Point3::new(x.x * r, x.y * r, 0.0));
+                    pulled[j] += rows.transpose() * x;
                 }
             }
-            let next = samples.fit_weights(&targets, &ridge)?;
+            let k = self.mode_count();
+            let base = &self.structure.base;
+            let modes = &self.structure.modes;
+            let mut normal = nalgebra::DMatrix::<Real>::zeros(k, k);
+            let mut rhs = nalgebra::DVector::<Real>::zeros(k);
+            for j in 0..POINT_COUNT {
+                let wj = point_weights[j];
+                if wj == 0.0 {
+                    continue;
+                }
+                let residual = pulled[j] - m * base[j].coords;
+                let mapped: Vec<Vector3<Real>> = modes.iter().map(|mode| m * mode[j]).collect();
+                for a in 0..k {
+                    rhs[a] += wj * modes[a][j].dot(&residual);
+                    for b in a..k {
+                        normal[(a, b)] += wj * modes[a][j].dot(&mapped[b]);
+                    }
+                }
+            }
+            for a in 0..k {
+                for b in 0..a {
+                    normal[(a, b)] = normal[(b, a)];
+                }
+                normal[(a, a)] += ridge[a];
+            }
+            let next = crate::bspline::solve_normal_equations(normal, &rhs)?;
             let change = largest_change(&next, &weights);
             weights = next;
             if change < 1e-7 {
