@@ -115,7 +115,7 @@ fn mean_placement(
 /// landmarks are the space's own vertices (0.38× at 0.5 mm), but on the real scan, whose
 /// landmarks were placed by other hands, it fits their definition differences into the shape
 /// (2.1× the mean face's error). 4 mm is the smallest that keeps the real scan below the mean
-/// face (0.90×) and still gives 0.61× on ICT identities.
+/// face (0.90×) and still gives 0.63× on ICT identities (`tools/results/face-space.md`).
 const LANDMARK_NOISE: Real = 4.0;
 const CONTOUR_WEIGHT: Real = 1.0;
 
@@ -241,6 +241,15 @@ fn main() -> Result<()> {
         started.elapsed().as_secs_f64()
     );
 
+    println!(
+        "# The face space's ceilings\n\nMade by `cargo run --release --example face_space -- --subjects {} --modes {}` \
+         (tools/face_space.rs). Inner-face error in mm (truth → face over the truth's inner face, after a similarity \
+         alignment), with the ratio to the unchanged mean face's. The lps-head scan is Lee Perry-Smith's (CC BY 3.0: \
+         \"Infinite, 3D Head Scan by Lee Perry-Smith is licensed under a Creative Commons Attribution 3.0 Unported \
+         License. Based on a work at www.triplegangers.com.\"); ICT-FaceKit: Copyright (c) 2020 USC Institute for \
+         Creative Technologies, MIT licence.\n",
+        args.subjects, args.modes
+    );
     // The space carries ICT's own identities: its structure of w is ICT's, in the mean face's
     // canonical frame.
     let mut rng = Lcg(17);
