@@ -423,11 +423,18 @@ pub fn reconstruct(
             let weights = crate::structure::contour_weighted(options.depth.contour_weight);
             let fit = space.fit_photos(&views, &weights, noise)?;
             let face = space.face(reference, &fit.weights)?;
-            let shape = format!(
+            let mut shape = format!(
                 "the reference's face space ({} modes) fitted to the points of {} photos, noise {noise} units",
                 space.mode_count(),
                 views.len()
             );
+            if !fit.held.is_empty() {
+                shape.push_str(&format!(
+                    "; modes {:?} left the prior's plausible range (±{} deviations) and were held at its edge",
+                    fit.held,
+                    crate::face::PLAUSIBLE_SIGMAS
+                ));
+            }
             (face, Some(fit), shape)
         }
         None => {
@@ -629,6 +636,7 @@ impl Reconstruction {
             "eye_centres": { "right": point(&structure[RIGHT_EYE_CENTRE]), "left": point(&structure[LEFT_EYE_CENTRE]) },
             "photos": photos,
             "similarity": self.depth.similarity,
+            "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
         });
         files.push((
             "structure.json".into(),
@@ -668,6 +676,7 @@ impl Reconstruction {
                 "shape": self.shape,
                 "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
                 "space_rms_units": self.space.as_ref().map(|s| s.rms_units.clone()),
+                "space_held_modes": self.space.as_ref().map(|s| s.held.clone()),
                 "structure_weight": self.structure_weight.0,
                 "structure_weight_reason": self.structure_weight.1,
                 "deformation": if self.space.is_some() {

@@ -448,7 +448,15 @@ pub struct PhotoSpaceFit {
     pub rms_units: Vec<Real>,
     /// Alternations run.
     pub iterations: usize,
+    /// The modes whose weight left the prior's plausible range (beyond
+    /// [`PLAUSIBLE_SIGMAS`] deviations) and was held at its edge.
+    pub held: Vec<usize>,
 }
+
+/// How many prior deviations a fitted weight may reach before [`FaceSpace::fit_photos`] holds
+/// it there: a weight beyond 3σ is more likely the landmarks' error than the face (each mode's
+/// prior puts 0.3% of faces there).
+pub const PLAUSIBLE_SIGMAS: Real = 3.0;
 
 impl FaceSpace {
     /// The MAP fit of the space to photos' 2D points under scaled orthographic cameras:
@@ -460,8 +468,10 @@ impl FaceSpace {
     ///
     /// (reprojection errors measured in canonical units, `ε` per coordinate), by alternating
     /// the poses (closed form, then Levenberg–Marquardt, on centred points) and the weights
-    /// (linear, [`SpaceSamples::fit_weights`]) until the weights settle. `views[i]` are photo
-    /// `i`'s 40 points with `y` up ([`crate::align::PhotoPoints::y_up`]).
+    /// (linear, summed over the photos first, so that the cost does not grow with their number)
+    /// until the weights settle; a weight beyond [`PLAUSIBLE_SIGMAS`] prior deviations is then
+    /// held there ([`PhotoSpaceFit::held`]). `views[i]` are photo `i`'s 40 points with `y` up
+    /// ([`crate::align::PhotoPoints::y_up`]).
     ///
     /// # Errors
     /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise that is not
@@ -590,6 +600,15 @@ impl FaceSpace {
                 break;
             }
         }
+        // Weights outside the prior's plausible range are held at its edge, and named.
+        let mut held = Vec::new();
+        for (k, (w, sigma)) in weights.iter_mut().zip(&self.sigma).enumerate() {
+            let limit = PLAUSIBLE_SIGMAS * sigma;
+            if w.abs() > limit {
+                *w = w.clamp(-limit, limit);
+                held.push(k);
+            }
+        }
         let shape = self.structure.member(&weights);
         let rms_units = views
             .iter()
@@ -609,6 +628,7 @@ impl FaceSpace {
             poses,
             rms_units,
             iterations,
+            held,
         })
     }
 }

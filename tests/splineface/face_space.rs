@@ -294,3 +294,28 @@ fn the_embedded_space_is_ictfacekits_identity_space() {
         reference.fit().median
     );
 }
+
+/// Landmarks that ask for an implausible face (a mode at 10σ) get the mode held at 3σ, named.
+#[test]
+fn implausible_weights_are_held_at_the_priors_edge_and_named() {
+    use nalgebra::Point2;
+    use splineface::depth::Pose;
+    use splineface::face::PLAUSIBLE_SIGMAS;
+    let space = space();
+    let shape = space.structure(&[0.5, 0.0, 10.0]).unwrap();
+    let views: Vec<Vec<Point2<f64>>> = [-30.0, 0.0, 30.0]
+        .iter()
+        .map(|&yaw| {
+            let pose = Pose::from_yaw_pitch_roll_degrees(yaw, 0.0, 0.0, 4.0);
+            shape.iter().map(|p| pose.project(p)).collect()
+        })
+        .collect();
+    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e-6).unwrap();
+    assert_eq!(fit.held, vec![2]);
+    assert!(
+        (fit.weights[2] - PLAUSIBLE_SIGMAS).abs() < 1e-12,
+        "{:?}",
+        fit.weights
+    );
+    assert!((fit.weights[0] - 0.5).abs() < 1e-3, "{:?}", fit.weights);
+}
