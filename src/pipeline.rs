@@ -377,13 +377,16 @@ pub fn reconstruct(
     let depth = estimate_depth(&points, &frontal, &prior, &options.depth)?;
     timings.push(("depth".to_owned(), start.elapsed().as_secs_f64()));
 
-    progress(match options.shape {
-        Shape::Space { .. } if reference.space_modes().is_some() => {
-            "fitting the face space to the photos' points and meshing the face"
-        }
-        _ => "deforming the reference surface and meshing the face",
-    });
     let start = Instant::now();
+    let space = match options.shape {
+        Shape::Space { noise } => reference.face_space().map(|space| (space, noise)),
+        Shape::Deformed => None,
+    };
+    progress(if space.is_some() {
+        "fitting the face space to the photos' points and meshing the face"
+    } else {
+        "deforming the reference surface and meshing the face"
+    });
     let (structure_weight, weight_note) = match options.structure_weight {
         StructureWeight::Fixed(alpha) => (alpha, "as asked".to_owned()),
         StructureWeight::Auto => {
@@ -411,10 +414,6 @@ pub fn reconstruct(
                 )
             }
         }
-    };
-    let space = match options.shape {
-        Shape::Space { noise } => reference.face_space().map(|space| (space, noise)),
-        Shape::Deformed => None,
     };
     let (face, space_fit, shape) = match space {
         Some((space, noise)) => {

@@ -208,6 +208,19 @@ impl FrontalFrame {
             self.y[0] + v * (self.y[1] - self.y[0]),
         )
     }
+
+    /// Samples every `spacing` over the box from its lower corner: how a reference samples its
+    /// scans ([`build_reference`]) and how modes are carried onto it
+    /// ([`crate::face::FaceSpace::from_displacements`]). The counts saturate for absurdly
+    /// small spacings; callers bound them.
+    pub fn raster(&self, spacing: Real) -> Raster {
+        Raster {
+            origin: Point2::new(self.x[0], self.y[0]),
+            spacing,
+            width: (((self.x[1] - self.x[0]) / spacing).floor() + 1.0) as usize,
+            height: (((self.y[1] - self.y[0]) / spacing).floor() + 1.0) as usize,
+        }
+    }
 }
 
 /// A reference face (see the module documentation).
@@ -279,7 +292,7 @@ impl SpaceModes {
         self
     }
 
-    fn check(&self, controls: usize) -> Result<(), String> {
+    pub(crate) fn check(&self, controls: usize) -> Result<(), String> {
         let k = self.sigma.len();
         if self.grid.len() != k || self.structure.len() != k {
             return Err(format!(
@@ -543,21 +556,14 @@ pub fn build_reference(
 
     // 3. Mean front-most heights over the box.
     let spacing = options.sample_spacing;
-    let width = ((hi.x - lo.x) / spacing).floor() + 1.0;
-    let height = ((hi.y - lo.y) / spacing).floor() + 1.0;
-    if width * height > MAX_SAMPLES as Real {
+    let raster = frame.raster(spacing);
+    if raster.width as Real * raster.height as Real > MAX_SAMPLES as Real {
         return Err(ReferenceError::Option {
             name: "sample spacing",
             value: spacing.to_string(),
             expected: "coarse enough for at most 20 million samples over the face box",
         });
     }
-    let raster = Raster {
-        origin: lo,
-        spacing,
-        width: width as usize,
-        height: height as usize,
-    };
     let mut sums = vec![0.0; raster.width * raster.height];
     for mesh in &meshes {
         for (sum, h) in sums.iter_mut().zip(front_heights(mesh, &raster)) {
@@ -689,10 +695,9 @@ impl ReferenceFace {
     /// The face space the reference carries, if any ([`crate::face::FaceSpace`]), on its
     /// surface and [`ReferenceFace::structure`].
     pub fn face_space(&self) -> Option<crate::face::FaceSpace> {
-        self.space.as_ref().map(|s| {
-            crate::face::FaceSpace::from_parts(self, s.grid.clone(), s.structure.clone(), s.sigma.clone())
-                .expect("modes checked when they were set")
-        })
+        self.space
+            .as_ref()
+            .map(|s| crate::face::FaceSpace::from_modes(self, s).expect("modes checked when they were set"))
     }
 
     /// The modes behind [`ReferenceFace::face_space`], if any.

@@ -31,7 +31,7 @@ use splineface::compare::{InnerFaceOptions, inner_face_score};
 use splineface::face::{Deformation, DenseFitOptions, FaceSpace, FaceSurface, MeshOptions, SpaceFit, Units};
 use splineface::mesh::TriangleMesh;
 use splineface::reference::ReferenceFace;
-use splineface::structure::{POINT_COUNT, from_ibug68, unify};
+use splineface::structure::{from_ibug68, unify};
 
 use common::{Ict, Lcg};
 
@@ -119,16 +119,6 @@ fn mean_placement(
 const LANDMARK_NOISE: Real = 4.0;
 const CONTOUR_WEIGHT: Real = 1.0;
 
-fn point_weights(contour: Real) -> [Real; POINT_COUNT] {
-    std::array::from_fn(|k| {
-        if splineface::structure::POINTS[k].group == splineface::structure::Group::Contour {
-            contour
-        } else {
-            1.0
-        }
-    })
-}
-
 /// The landmark fit's score over a grid of noise levels and contour weights.
 fn sweep(
     reference: &ReferenceFace,
@@ -139,7 +129,11 @@ fn sweep(
     let mut out = Vec::new();
     for contour in CONTOURS {
         for noise in NOISES {
-            let fit = space.fit_structure(truth_structure, &point_weights(contour), noise)?;
+            let fit = space.fit_structure(
+                truth_structure,
+                &splineface::structure::contour_weighted(contour),
+                noise,
+            )?;
             let face = space.face(reference, &fit.weights)?;
             let (mesh, structure) = placed(&face, &fit.placement)?;
             out.push(score(&mesh, &structure, truth, truth_structure)?);
@@ -179,7 +173,11 @@ fn evaluate(
     let (mesh, structure) = placed(&local, &to_canonical.inverse())?;
     let local = score(&mesh, &structure, truth, truth_structure)?;
     // The space's MAP fit to the true 3D landmarks (see `LANDMARK_NOISE`, `CONTOUR_WEIGHT`).
-    let fit = space.fit_structure(truth_structure, &point_weights(CONTOUR_WEIGHT), LANDMARK_NOISE)?;
+    let fit = space.fit_structure(
+        truth_structure,
+        &splineface::structure::contour_weighted(CONTOUR_WEIGHT),
+        LANDMARK_NOISE,
+    )?;
     let landmark_face = space.face(reference, &fit.weights)?;
     let (mesh, structure) = placed(&landmark_face, &fit.placement)?;
     let landmarks = score(&mesh, &structure, truth, truth_structure)?;

@@ -201,10 +201,9 @@ impl SurfaceSpace {
     ///
     /// # Errors
     /// As [`SurfaceSpace::new`].
-    pub fn with_mode(mut self, mode: Vec<Vector3<Real>>) -> Result<Self, BSplineError> {
-        let base = self.base.clone();
-        self.modes.push(mode);
-        let modes = std::mem::take(&mut self.modes);
+    pub fn with_mode(self, mode: Vec<Vector3<Real>>) -> Result<Self, BSplineError> {
+        let SurfaceSpace { base, mut modes } = self;
+        modes.push(mode);
         Self::new(base, modes)
     }
 

@@ -8,7 +8,7 @@ use super::{DeformationReport, FaceError, FaceSurface};
 use crate::Real;
 use crate::bspline::{BSplineSurface, SpaceSamples, SurfaceSpace};
 use crate::depth::Pose;
-use crate::mesh::{ClosestPoints, Raster, TriangleMesh, front_hits};
+use crate::mesh::{ClosestPoints, TriangleMesh, front_hits};
 use crate::reference::ReferenceFace;
 use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
 
@@ -101,13 +101,7 @@ impl FaceSpace {
         // The reference's sampling of its scan: the front-most surface over the frame.
         let frame = reference.frame();
         let options = reference.fit().options;
-        let spacing = options.sample_spacing;
-        let raster = Raster {
-            origin: Point2::new(frame.x[0], frame.y[0]),
-            spacing,
-            width: ((frame.x[1] - frame.x[0]) / spacing).floor() as usize + 1,
-            height: ((frame.y[1] - frame.y[0]) / spacing).floor() as usize + 1,
-        };
+        let raster = frame.raster(options.sample_spacing);
         let mut hits = Vec::new();
         let mut params = Vec::new();
         for (index, hit) in front_hits(scan, &raster).into_iter().enumerate() {
@@ -162,48 +156,27 @@ impl FaceSpace {
         })
     }
 
-    /// A space from its parts on `reference`: grid displacements (row-major, one vector per
-    /// control point), structure displacements (40 per mode) and deviations. The base is the
-    /// reference's surface and structure.
+    /// The space a reference stores ([`ReferenceFace::face_space`]) on `reference`: its
+    /// surface and structure are the base, `modes` the displacements and deviations.
     ///
     /// # Errors
-    /// [`FaceError::Space`] when the counts do not match or a value is not finite;
-    /// [`FaceError::Kernel`] for a grid mode of the wrong size.
-    pub fn from_parts(
+    /// [`FaceError::Space`] when the modes do not match the reference's grid, or a value is
+    /// not finite (see [`crate::reference::SpaceModes`]).
+    pub fn from_modes(
         reference: &ReferenceFace,
-        grid: Vec<Vec<Vector3<Real>>>,
-        structure: Vec<Vec<Vector3<Real>>>,
-        sigma: Vec<Real>,
+        modes: &crate::reference::SpaceModes,
     ) -> Result<Self, FaceError> {
-        if grid.len() != sigma.len() || structure.len() != sigma.len() {
-            return Err(FaceError::Space(format!(
-                "{} grid modes, {} structure modes and {} deviations",
-                grid.len(),
-                structure.len(),
-                sigma.len()
-            )));
-        }
-        if let Some(k) = sigma.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(FaceError::Space(format!(
-                "mode {k}: deviation {} is not positive",
-                sigma[k]
-            )));
-        }
-        if let Some(k) = structure
-            .iter()
-            .position(|m| m.len() != POINT_COUNT || m.iter().any(|d| !d.iter().all(|c| c.is_finite())))
-        {
-            return Err(FaceError::Space(format!(
-                "mode {k}: the structure needs 40 finite displacements"
-            )));
-        }
+        let surface = reference.surface();
+        modes
+            .check(surface.rows() * surface.cols())
+            .map_err(FaceError::Space)?;
         Ok(FaceSpace {
-            surfaces: SurfaceSpace::new(reference.surface().clone(), grid)?,
+            surfaces: SurfaceSpace::new(surface.clone(), modes.grid.clone())?,
             structure: SpaceSamples {
                 base: reference.structure().to_vec(),
-                modes: structure,
+                modes: modes.structure.clone(),
             },
-            sigma,
+            sigma: modes.sigma.clone(),
         })
     }
 
@@ -248,6 +221,12 @@ impl FaceSpace {
             },
             sigma: self.sigma[..k].to_vec(),
         }
+    }
+
+    /// The ridge `ρₖ = ε² / σₖ²` of the MAP fits for data with noise `ε` per coordinate (in
+    /// the space's units): the Gaussian prior on the weights against the data's error.
+    fn ridge(&self, noise: Real) -> Vec<Real> {
+        self.sigma.iter().map(|s| (noise / s).powi(2)).collect()
     }
 
     /// The member's 40 points, canonical frame.
@@ -311,15 +290,21 @@ impl FaceSpace {
         let mut iterations = 0;
         // Weighted points enter both solves by repetition-free scaling: √wᵢ on every term.
         let roots: Vec<Real> = point_weights.iter().map(|w| w.sqrt()).collect();
-        let scale_samples = |samples: &SpaceSamples| SpaceSamples {
-            base: samples.base.iter().zip(&roots).map(|(p, r)| p * *r).collect(),
-            modes: samples
+        let scaled = SpaceSamples {
+            base: self
+                .structure
+                .base
+                .iter()
+                .zip(&roots)
+                .map(|(p, r)| p * *r)
+                .collect(),
+            modes: self
+                .structure
                 .modes
                 .iter()
                 .map(|m| m.iter().zip(&roots).map(|(d, r)| d * *r).collect())
                 .collect(),
         };
-        let scaled = scale_samples(&self.structure);
         let used: Vec<usize> = (0..POINT_COUNT).filter(|&i| point_weights[i] > 0.0).collect();
         for iteration in 0..100 {
             iterations = iteration + 1;
@@ -335,9 +320,7 @@ impl FaceSpace {
                 .map(|(t, r)| (inverse * t) * *r)
                 .collect();
             // ε in the space's units: the targets' noise divided by the placement's scale.
-            let eps = noise / map.scaling();
-            let ridge: Vec<Real> = self.sigma.iter().map(|s| (eps / s).powi(2)).collect();
-            let next = scaled.fit_weights(&pulled, &ridge)?;
+            let next = scaled.fit_weights(&pulled, &self.ridge(noise / map.scaling()))?;
             let change = largest_change(&next, &weights);
             weights = next;
             if change < 1e-9 {
@@ -421,8 +404,7 @@ impl FaceSpace {
                     .collect(),
             };
             let targets: Vec<Point3<Real>> = order.iter().map(|&s| inverse * found[s].point).collect();
-            let eps = options.noise / fit.placement.scaling();
-            let ridge: Vec<Real> = self.sigma.iter().map(|s| (eps / s).powi(2)).collect();
+            let ridge = self.ridge(options.noise / fit.placement.scaling());
             fit.weights = kept.fit_weights(&targets, &ridge)?;
             let moved = kept.member(&fit.weights);
             let on_mesh: Vec<Point3<Real>> = order.iter().map(|&s| found[s].point).collect();
@@ -517,7 +499,7 @@ impl FaceSpace {
                 .fold(nalgebra::Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
                 / total
         };
-        let ridge: Vec<Real> = self.sigma.iter().map(|s| (noise / s).powi(2)).collect();
+        let ridge = self.ridge(noise);
         let mut weights = vec![0.0; self.mode_count()];
         let mut poses = vec![
             (
