@@ -119,6 +119,19 @@ fn mean_placement(
 const LANDMARK_NOISE: Real = 4.0;
 const CONTOUR_WEIGHT: Real = 1.0;
 
+/// The score of a fitted member of the space, placed where the fit put it.
+fn score_fit(
+    reference: &ReferenceFace,
+    space: &FaceSpace,
+    fit: &SpaceFit,
+    truth: &TriangleMesh,
+    truth_structure: &[Point3<Real>],
+) -> Result<Real> {
+    let face = space.face(reference, &fit.weights)?;
+    let (mesh, structure) = placed(&face, &fit.placement)?;
+    score(&mesh, &structure, truth, truth_structure)
+}
+
 /// The landmark fit's score over a grid of noise levels and contour weights.
 fn sweep(
     reference: &ReferenceFace,
@@ -134,9 +147,7 @@ fn sweep(
                 &splineface::structure::contour_weighted(contour),
                 noise,
             )?;
-            let face = space.face(reference, &fit.weights)?;
-            let (mesh, structure) = placed(&face, &fit.placement)?;
-            out.push(score(&mesh, &structure, truth, truth_structure)?);
+            out.push(score_fit(reference, space, &fit, truth, truth_structure)?);
         }
     }
     Ok(out)
@@ -178,18 +189,14 @@ fn evaluate(
         &splineface::structure::contour_weighted(CONTOUR_WEIGHT),
         LANDMARK_NOISE,
     )?;
-    let landmark_face = space.face(reference, &fit.weights)?;
-    let (mesh, structure) = placed(&landmark_face, &fit.placement)?;
-    let landmarks = score(&mesh, &structure, truth, truth_structure)?;
+    let landmarks = score_fit(reference, space, &fit, truth, truth_structure)?;
     let dense = if dense {
         let options = DenseFitOptions {
             noise: 0.5,
             ..DenseFitOptions::default()
         };
-        let fitted: SpaceFit = space.fit_surface(reference, truth, &fit, &options)?;
-        let face = space.face(reference, &fitted.weights)?;
-        let (mesh, structure) = placed(&face, &fitted.placement)?;
-        Some(score(&mesh, &structure, truth, truth_structure)?)
+        let fitted = space.fit_surface(reference, truth, &fit, &options)?;
+        Some(score_fit(reference, space, &fitted, truth, truth_structure)?)
     } else {
         None
     };
