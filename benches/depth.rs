@@ -91,7 +91,10 @@ fn bench(c: &mut Criterion) {
                 .fit_photos(
                     black_box(&views),
                     &weights,
-                    splineface::pipeline::Shape::DEFAULT_NOISE,
+                    &splineface::face::PhotoFitOptions {
+                        noise: splineface::pipeline::Shape::DEFAULT_NOISE,
+                        expression_sigma: Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA),
+                    },
                 )
                 .unwrap()
         })

@@ -9,7 +9,7 @@ use nalgebra::{Affine3, Matrix4, Point3, Vector3};
 use splineface::align::PhotoPoints;
 use splineface::bspline::BSplineSurface;
 use splineface::compare::CompareOptions;
-use splineface::face::{Deformation, MeshOptions, Units};
+use splineface::face::{Deformation, FaceSpace, MeshOptions, Units};
 use splineface::landmarks::{read_landmarks_json, read_vertex_indices};
 use splineface::mesh::{TriangleMesh, read_mesh};
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, reconstruct};
@@ -18,7 +18,7 @@ use splineface::reference::{ReferenceOptions, ReferenceScan, ReferenceSource, bu
 use splineface::render::{
     DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, heatmap_png, shaded_png,
 };
-use splineface::structure::{IBUG_POINT_COUNT, from_ibug68};
+use splineface::structure::{IBUG_POINT_COUNT, from_ibug68, unify};
 
 /// Smooth 3D faces from uncalibrated photos: B-spline surfaces, meshes and depth maps.
 #[derive(Parser)]
@@ -63,6 +63,28 @@ enum Command {
         /// Free text stored in the file's provenance (licence, origin).
         #[arg(long, default_value = "")]
         note: String,
+        /// Identity modes of the face space: per-vertex displacement fields of the (single)
+        /// scan, as little-endian float32 `[mode][vertex][x, y, z]` in the scan's own frame and
+        /// units (the size must be a multiple of the scan's vertices × 12 bytes), each the
+        /// displacement of one prior standard deviation (a plausible face is
+        /// `scan + Σ wₖ·modeₖ` with `wₖ ~ N(0, 1)`). Needs the landmarks as vertex indices.
+        #[arg(long, value_name = "FILE")]
+        identity_modes: Option<PathBuf>,
+        /// Expression modes (blendshapes) of the face space, laid out like `--identity-modes`,
+        /// each the displacement of the full expression (weights in `[0, 1]`).
+        #[arg(
+            long,
+            value_name = "FILE",
+            requires = "expression_names",
+            requires = "identity_modes"
+        )]
+        expression_modes: Option<PathBuf>,
+        /// The expression modes' names, one a line (blank lines and `#` comments skipped).
+        #[arg(long, value_name = "FILE", requires = "expression_modes")]
+        expression_names: Option<PathBuf>,
+        /// Where the modes came from (licence, origin), stored with them.
+        #[arg(long, default_value = "")]
+        modes_note: String,
     },
     /// Reconstruct a face from photos and/or their landmark files.
     ///
@@ -184,6 +206,17 @@ struct OutputArgs {
     /// face nearer the mean).
     #[arg(long, default_value_t = splineface::pipeline::Shape::DEFAULT_NOISE)]
     space_noise: f64,
+    /// The prior deviation of each photo's expression weights in the face-space fit (larger
+    /// lets the photos' points pull harder on the expression).
+    #[arg(long, default_value_t = splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA)]
+    expression_sigma: f64,
+    /// Take every photo as neutral: fit no expressions.
+    #[arg(long)]
+    no_expressions: bool,
+    /// Make the face with this photo's expression (its file stem, as the report names it)
+    /// instead of the neutral identity.
+    #[arg(long, value_name = "PHOTO")]
+    expression_of: Option<String>,
     /// The surface deformation of `--shape deformed`: `local` (default, by measurement) or
     /// `affine` (the paper's).
     #[arg(long, default_value = "local")]
@@ -201,6 +234,24 @@ struct OutputArgs {
 }
 
 impl OutputArgs {
+    /// The index of `--expression-of`'s photo among `inputs`.
+    fn expression_photo(&self, inputs: &[Input]) -> Result<Option<usize>> {
+        let Some(name) = &self.expression_of else {
+            return Ok(None);
+        };
+        match inputs.iter().position(|i| &i.points.name == name) {
+            Some(index) => Ok(Some(index)),
+            None => bail!(
+                "--expression-of {name}: no usable photo has that name (the photos are {})",
+                inputs
+                    .iter()
+                    .map(|i| i.points.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }
+    }
+
     fn options(&self) -> Result<PipelineOptions> {
         let units = match self.units.as_str() {
             "mm" => {
@@ -222,9 +273,13 @@ impl OutputArgs {
         if !(self.space_noise > 0.0 && self.space_noise.is_finite()) {
             bail!("--space-noise {} must be positive", self.space_noise);
         }
+        if !(self.expression_sigma > 0.0 && self.expression_sigma.is_finite()) {
+            bail!("--expression-sigma {} must be positive", self.expression_sigma);
+        }
         let shape = match self.shape.as_str() {
             "space" => splineface::pipeline::Shape::Space {
                 noise: self.space_noise,
+                expressions: (!self.no_expressions).then_some(self.expression_sigma),
             },
             "deformed" => splineface::pipeline::Shape::Deformed,
             other => bail!("--shape `{other}`: expected space or deformed"),
@@ -283,6 +338,10 @@ fn run(cli: Cli) -> Result<()> {
             smoothness,
             sample_spacing,
             note,
+            identity_modes,
+            expression_modes,
+            expression_names,
+            modes_note,
         } => {
             let options = ReferenceOptions {
                 grid,
@@ -290,7 +349,12 @@ fn run(cli: Cli) -> Result<()> {
                 sample_spacing,
                 ..ReferenceOptions::default()
             };
-            fit_reference(&meshes, &landmarks, &out, &options, &note)
+            let modes = identity_modes.map(|identity| ModeFiles {
+                identity,
+                expressions: expression_modes.zip(expression_names),
+                note: modes_note,
+            });
+            fit_reference(&meshes, &landmarks, &out, &options, &note, modes.as_ref())
         }
         Command::Reconstruct {
             photos,
@@ -689,18 +753,120 @@ fn file_name(path: &Path) -> String {
     )
 }
 
+/// `fit-reference`'s face-space inputs: displacement-field files of the scan.
+struct ModeFiles {
+    identity: PathBuf,
+    /// The expression fields and their names.
+    expressions: Option<(PathBuf, PathBuf)>,
+    note: String,
+}
+
+/// Displacement fields `[mode][vertex][3]` (little-endian `f32`) of a scan of `vertices`
+/// vertices, mapped into the canonical frame by `to_canonical` (its rotation and scale).
+fn read_fields(
+    path: &Path,
+    vertices: usize,
+    to_canonical: &nalgebra::Similarity3<f64>,
+) -> Result<Vec<Vec<nalgebra::Vector3<f64>>>> {
+    let bytes = splineface::io::read_input(path, splineface::io::MAX_LARGE_INPUT_BYTES)
+        .with_context(|| format!("cannot read {}", path.display()))?;
+    let per_mode = vertices * 12;
+    if bytes.is_empty() || bytes.len() % per_mode != 0 {
+        bail!(
+            "{}: {} bytes is not a whole number of modes of {vertices} vertices × 3 float32 ({per_mode} bytes each)",
+            path.display(),
+            bytes.len()
+        );
+    }
+    let mut fields = Vec::with_capacity(bytes.len() / per_mode);
+    for (k, mode) in bytes.chunks_exact(per_mode).enumerate() {
+        let mut field = Vec::with_capacity(vertices);
+        for (v, d) in mode.chunks_exact(12).enumerate() {
+            let c = |i: usize| f64::from(f32::from_le_bytes([d[i], d[i + 1], d[i + 2], d[i + 3]]));
+            let vector = nalgebra::Vector3::new(c(0), c(4), c(8));
+            if !vector.iter().all(|x| x.is_finite()) {
+                bail!(
+                    "{}: mode {k}, vertex {v}: the displacement is not finite",
+                    path.display()
+                );
+            }
+            field.push(to_canonical * vector);
+        }
+        fields.push(field);
+    }
+    Ok(fields)
+}
+
+/// The reference with a face space built from `modes`, displacement fields of its single
+/// scan `mesh` with 68 landmark vertex indices in `landmark_path`.
+fn with_modes(
+    reference: ReferenceFace,
+    mesh: &TriangleMesh,
+    landmark_path: &Path,
+    modes: &ModeFiles,
+) -> Result<ReferenceFace> {
+    let vertices = mesh.positions().len();
+    if has_extension(landmark_path, &["json"]) {
+        bail!(
+            "{}: the face space's modes need the landmarks as 68 vertex indices (to move them with the modes), not a JSON landmark file",
+            landmark_path.display()
+        );
+    }
+    let landmarks = read_vertex_indices(landmark_path, IBUG_POINT_COUNT, vertices)?;
+    let points: Vec<_> = landmarks.iter().map(|&i| mesh.positions()[i]).collect();
+    let (to_canonical, _) = unify(&from_ibug68(&points)?)?;
+    let scan = mesh.transformed(&nalgebra::convert(to_canonical));
+    let identity = read_fields(&modes.identity, vertices, &to_canonical)?;
+    let sigma = vec![1.0; identity.len()];
+    let mut space = FaceSpace::from_displacements(&reference, &scan, &landmarks, &identity, &sigma)
+        .with_context(|| format!("{}", modes.identity.display()))?;
+    if let Some((fields_path, names_path)) = &modes.expressions {
+        let fields = read_fields(fields_path, vertices, &to_canonical)?;
+        let text = splineface::io::read_input_text(names_path, splineface::io::MAX_DATA_INPUT_BYTES)
+            .with_context(|| format!("cannot read {}", names_path.display()))?;
+        let names: Vec<String> = text
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with('#'))
+            .map(str::to_owned)
+            .collect();
+        if names.len() != fields.len() {
+            bail!(
+                "{}: {} names for the {} expression modes of {}",
+                names_path.display(),
+                names.len(),
+                fields.len(),
+                fields_path.display()
+            );
+        }
+        space = space
+            .with_expression_displacements(&reference, &scan, &landmarks, &names, &fields, &modes.note)
+            .with_context(|| format!("{}", fields_path.display()))?;
+    }
+    reference
+        .with_space(Some(space.to_modes(&modes.note)))
+        .map_err(anyhow::Error::msg)
+}
+
 fn fit_reference(
     meshes: &[PathBuf],
     landmarks: &[PathBuf],
     out: &Path,
     options: &ReferenceOptions,
     note: &str,
+    modes: Option<&ModeFiles>,
 ) -> Result<()> {
     if meshes.len() != landmarks.len() {
         bail!(
             "{} --mesh but {} --landmarks: give one landmark file per scan",
             meshes.len(),
             landmarks.len()
+        );
+    }
+    if modes.is_some() && meshes.len() != 1 {
+        bail!(
+            "--identity-modes are displacement fields of one scan; {} scans were given",
+            meshes.len()
         );
     }
     options.validate()?;
@@ -724,7 +890,10 @@ fn fit_reference(
         });
     }
     let start = std::time::Instant::now();
-    let reference = build_reference(&scans, options, note)?;
+    let mut reference = build_reference(&scans, options, note)?;
+    if let Some(modes) = modes {
+        reference = with_modes(reference, &scans[0].mesh, &landmarks[0], modes)?;
+    }
     let elapsed = start.elapsed();
     splineface::io::write_atomically(out, reference.to_json().as_bytes())
         .with_context(|| format!("cannot write {}", out.display()))?;
@@ -750,6 +919,13 @@ fn fit_reference(
         "  worst sample   ({:.1}, {:.1}, {:.1})",
         fit.max_at.x, fit.max_at.y, fit.max_at.z
     );
+    if let Some(space) = reference.space_modes() {
+        println!(
+            "  face space     {} identity and {} expression modes",
+            space.sigma.len(),
+            space.expressions.len()
+        );
+    }
     println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
     Ok(())
 }
@@ -1006,6 +1182,8 @@ fn reconstruct_command(
                 .collect::<String>()
         );
     }
+    let mut options = options;
+    options.expression_of = output.expression_photo(&inputs)?;
     let start = std::time::Instant::now();
     let result = reconstruct(&inputs, &reference, &options, progress)?;
     let mut files = result.files()?;
@@ -1080,6 +1258,8 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         ..splineface::demo::SceneOptions::default()
     })
     .map_err(anyhow::Error::msg)?;
+    let mut options = options;
+    options.expression_of = output.expression_photo(&scene.inputs)?;
     let result = reconstruct(&scene.inputs, ReferenceFace::embedded(), &options, progress)?;
     progress("comparing with the truth");
     let to_units = options.units.transform();

@@ -95,6 +95,10 @@ pub struct PipelineOptions {
     pub drop_disagreeing: bool,
     /// Where the face's shape comes from.
     pub shape: Shape,
+    /// Make the face with this photo's expression (its index among the inputs) instead of
+    /// the neutral identity; needs [`Shape::Space`] with expressions fitted, and the photo
+    /// kept ([`PipelineError::ExpressionOf`] otherwise).
+    pub expression_of: Option<usize>,
 }
 
 /// Where the face's shape comes from.
@@ -111,6 +115,10 @@ pub enum Shape {
     Space {
         /// `ε`, canonical units.
         noise: Real,
+        /// `τ`, the prior deviation of each photo's expression weights
+        /// ([`crate::face::PhotoFitOptions::expression_sigma`]), or `None` to take every
+        /// photo as neutral.
+        expressions: Option<Real>,
     },
 }
 
@@ -132,6 +140,9 @@ pub enum StructureWeight {
 impl Shape {
     /// The default [`Shape::Space`] noise, canonical units per coordinate (≈ 5 mm).
     pub const DEFAULT_NOISE: Real = 4.0;
+
+    /// The default [`Shape::Space`] expression deviation `τ`.
+    pub const DEFAULT_EXPRESSION_SIGMA: Real = 0.5;
 }
 
 impl Default for Shape {
@@ -155,6 +166,7 @@ impl Default for Shape {
     fn default() -> Self {
         Shape::Space {
             noise: Self::DEFAULT_NOISE,
+            expressions: Some(Self::DEFAULT_EXPRESSION_SIGMA),
         }
     }
 }
@@ -191,6 +203,7 @@ impl Default for PipelineOptions {
             drop_disagreeing: true,
             structure_weight: StructureWeight::Auto,
             shape: Shape::default(),
+            expression_of: None,
         }
     }
 }
@@ -225,6 +238,15 @@ pub enum PipelineError {
     /// The surface could not be made.
     #[error("surface: {0}")]
     Face(#[from] FaceError),
+    /// The face was asked for with a photo's expression ([`PipelineOptions::expression_of`])
+    /// that the reconstruction does not know.
+    #[error("the face with the expression of photo {photo} cannot be made: {reason}")]
+    ExpressionOf {
+        /// The photo's index among the inputs.
+        photo: usize,
+        /// Why.
+        reason: String,
+    },
     /// An output could not be encoded.
     #[error("encoding {file}: {message}")]
     Encode {
@@ -290,6 +312,14 @@ pub fn reconstruct(
             usable: inputs.len(),
             needed,
             dropped: Vec::new(),
+        });
+    }
+    if let Some(photo) = options.expression_of
+        && photo >= inputs.len()
+    {
+        return Err(PipelineError::ExpressionOf {
+            photo,
+            reason: format!("there are only {} photos", inputs.len()),
         });
     }
     // The structure to deform from is where the photo path puts landmarks on the reference.
@@ -379,7 +409,15 @@ pub fn reconstruct(
 
     let start = Instant::now();
     let space = match options.shape {
-        Shape::Space { noise } => reference.face_space().map(|space| (space, noise)),
+        Shape::Space { noise, expressions } => reference.face_space().map(|space| {
+            (
+                space,
+                crate::face::PhotoFitOptions {
+                    noise,
+                    expression_sigma: expressions,
+                },
+            )
+        }),
         Shape::Deformed => None,
     };
     progress(if space.is_some() {
@@ -416,17 +454,44 @@ pub fn reconstruct(
         }
     };
     let (face, space_fit, shape) = match space {
-        Some((space, noise)) => {
+        Some((space, fit_options)) => {
             let views: Vec<Vec<nalgebra::Point2<Real>>> =
                 kept.iter().map(|&k| inputs[k].points.y_up()).collect();
             let weights = crate::structure::contour_weighted(options.depth.contour_weight);
-            let fit = space.fit_photos(&views, &weights, noise)?;
-            let face = space.face(reference, &fit.weights)?;
+            let fit = space.fit_photos(&views, &weights, &fit_options)?;
             let mut shape = format!(
-                "the reference's face space ({} modes) fitted to the points of {} photos, noise {noise} units",
+                "the reference's face space ({} modes) fitted to the points of {} photos, noise {} units",
                 space.mode_count(),
-                views.len()
+                views.len(),
+                fit_options.noise
             );
+            let fitted_expressions = fit.expressions.first().is_some_and(|e| !e.is_empty());
+            if fitted_expressions {
+                shape.push_str(&format!(
+                    ", with each photo's expression ({} modes, deviation {})",
+                    space.expressions().len(),
+                    fit_options.expression_sigma.unwrap_or_default()
+                ));
+            }
+            let face = match options.expression_of {
+                None => space.face(reference, &fit.weights)?,
+                Some(photo) => {
+                    let Some(slot) = kept.iter().position(|&k| k == photo) else {
+                        return Err(PipelineError::ExpressionOf {
+                            photo,
+                            reason: "it was left out of the reconstruction".to_owned(),
+                        });
+                    };
+                    if !fitted_expressions {
+                        return Err(PipelineError::ExpressionOf {
+                            photo,
+                            reason: "no expressions were fitted (the reference's space has none, or they were turned off)".to_owned(),
+                        });
+                    }
+                    shape.push_str(&format!(", shown with the expression of photo {photo}"));
+                    space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?
+                }
+            };
             if !fit.held.is_empty() {
                 shape.push_str(&format!(
                     "; modes {:?} left the prior's plausible range (±{} deviations) and were held at its edge",
@@ -636,6 +701,23 @@ impl Reconstruction {
             "photos": photos,
             "similarity": self.depth.similarity,
             "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
+            "expressions": self.space.as_ref().filter(|s| !s.expression_names.is_empty()).map(|s| {
+                self.depth
+                    .photos
+                    .iter()
+                    .zip(&s.expressions)
+                    .map(|(p, e)| {
+                        let weights: serde_json::Map<String, serde_json::Value> = s
+                            .expression_names
+                            .iter()
+                            .zip(e)
+                            .filter(|(_, w)| **w > 0.0)
+                            .map(|(name, w)| (name.clone(), json!(w)))
+                            .collect();
+                        json!({ "name": p.name, "weights": weights })
+                    })
+                    .collect::<Vec<_>>()
+            }),
         });
         files.push((
             "structure.json".into(),

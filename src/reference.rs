@@ -253,6 +253,49 @@ pub struct SpaceModes {
     pub sigma: Vec<Real>,
     /// Where the modes came from (data, licence).
     pub note: String,
+    /// The expression modes, if any (empty for none).
+    pub expressions: ExpressionModes,
+}
+
+/// A face space's expression modes (blendshapes): per mode, its name and its displacement of
+/// the control grid and of the 40 points at full strength. An expression's weight lies in
+/// `[0, 1]` (0 neutral, 1 the full expression); unlike an identity mode it has no Gaussian
+/// prior of its own, the fit chooses one ([`crate::face::PhotoFitOptions`]). Stored like the
+/// identity modes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ExpressionModes {
+    /// Each mode's name (e.g. `jawOpen`), unique.
+    pub names: Vec<String>,
+    /// `grid[k]`: mode `k`'s displacement of every control point, row-major.
+    pub grid: Vec<Vec<Vector3<Real>>>,
+    /// `structure[k]`: mode `k`'s displacement of the 40 points.
+    pub structure: Vec<Vec<Vector3<Real>>>,
+    /// Where the modes came from (data, licence).
+    pub note: String,
+}
+
+impl ExpressionModes {
+    /// The number of modes.
+    pub fn len(&self) -> usize {
+        self.names.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.names.is_empty()
+    }
+}
+
+/// The serialised form of [`ExpressionModes`].
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawExpressions {
+    names: Vec<String>,
+    structure: Vec<Vec<Vector3<Real>>>,
+    /// `"f32le-base64"`.
+    grid_encoding: String,
+    grid: String,
+    note: String,
 }
 
 /// The serialised form of [`SpaceModes`].
@@ -266,9 +309,93 @@ struct RawSpace {
     grid_encoding: String,
     grid: String,
     note: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    expressions: Option<RawExpressions>,
 }
 
 const GRID_ENCODING: &str = "f32le-base64";
+
+/// Grid displacements as the file stores them: little-endian `f32`, base64.
+fn encode_grid(grid: &[Vec<Vector3<Real>>]) -> String {
+    let mut bytes = Vec::with_capacity(grid.iter().map(|g| g.len() * 12).sum());
+    for d in grid.iter().flatten() {
+        for c in d.iter() {
+            bytes.extend_from_slice(&(*c as f32).to_le_bytes());
+        }
+    }
+    base64::encode(bytes)
+}
+
+/// The inverse of [`encode_grid`] for `modes` modes of `controls` control points; `what`
+/// names the field in errors.
+fn decode_grid(
+    encoding: &str,
+    grid: &str,
+    modes: usize,
+    controls: usize,
+    what: &str,
+) -> Result<Vec<Vec<Vector3<Real>>>, String> {
+    if encoding != GRID_ENCODING {
+        return Err(format!(
+            "{what}: grid encoding {encoding:?} is not supported (expected {GRID_ENCODING:?})"
+        ));
+    }
+    let bytes = base64::decode(grid).map_err(|e| format!("{what}: the grid is not valid base64 ({e})"))?;
+    let expected = modes * controls * 12;
+    if bytes.len() != expected {
+        return Err(format!(
+            "{what}: the grid holds {} bytes; {modes} modes of {controls} control points need {expected}",
+            bytes.len()
+        ));
+    }
+    let values: Vec<Real> = bytes
+        .chunks_exact(4)
+        .map(|c| Real::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
+        .collect();
+    Ok(values
+        .chunks_exact(controls * 3)
+        .map(|mode| {
+            mode.chunks_exact(3)
+                .map(|c| Vector3::new(c[0], c[1], c[2]))
+                .collect()
+        })
+        .collect())
+}
+
+/// Checks that every mode moves `controls` control points and the 40 points, finitely.
+fn check_mode_shapes(
+    grid: &[Vec<Vector3<Real>>],
+    structure: &[Vec<Vector3<Real>>],
+    controls: usize,
+    what: &str,
+) -> Result<(), String> {
+    if grid.len() != structure.len() {
+        return Err(format!(
+            "{what}: {} grid modes and {} structure modes",
+            grid.len(),
+            structure.len()
+        ));
+    }
+    let finite = |v: &Vec<Vector3<Real>>| v.iter().all(|d| d.iter().all(|c| c.is_finite()));
+    for (m, (g, s)) in grid.iter().zip(structure).enumerate() {
+        if g.len() != controls {
+            return Err(format!(
+                "{what}: mode {m} moves {} control points; the grid has {controls}",
+                g.len()
+            ));
+        }
+        if s.len() != POINT_COUNT {
+            return Err(format!(
+                "{what}: mode {m} moves {} structure points, expected {POINT_COUNT}",
+                s.len()
+            ));
+        }
+        if !finite(g) || !finite(s) {
+            return Err(format!("{what}: mode {m} has a displacement that is not finite"));
+        }
+    }
+    Ok(())
+}
 
 impl SpaceModes {
     /// The first `k` modes only (all of them when there are fewer).
@@ -279,12 +406,19 @@ impl SpaceModes {
             structure: self.structure[..k].to_vec(),
             sigma: self.sigma[..k].to_vec(),
             note: format!("{} (the first {k} modes)", self.note),
+            expressions: self.expressions.clone(),
         }
+    }
+
+    /// These modes without their expressions.
+    pub fn without_expressions(mut self) -> Self {
+        self.expressions = ExpressionModes::default();
+        self
     }
 
     /// The modes with their grid displacements rounded to `f32` (what the file stores).
     pub fn rounded(mut self) -> Self {
-        for mode in &mut self.grid {
+        for mode in self.grid.iter_mut().chain(&mut self.expressions.grid) {
             for d in mode.iter_mut() {
                 *d = d.map(|c| Real::from(c as f32));
             }
@@ -307,82 +441,70 @@ impl SpaceModes {
                 self.sigma[m]
             ));
         }
-        for m in 0..k {
-            if self.grid[m].len() != controls {
-                return Err(format!(
-                    "space: mode {m} moves {} control points; the grid has {controls}",
-                    self.grid[m].len()
-                ));
-            }
-            if self.structure[m].len() != POINT_COUNT {
-                return Err(format!(
-                    "space: mode {m} moves {} structure points, expected {POINT_COUNT}",
-                    self.structure[m].len()
-                ));
-            }
-            let finite = |v: &Vec<Vector3<Real>>| v.iter().all(|d| d.iter().all(|c| c.is_finite()));
-            if !finite(&self.grid[m]) || !finite(&self.structure[m]) {
-                return Err(format!("space: mode {m} has a displacement that is not finite"));
-            }
+        check_mode_shapes(&self.grid, &self.structure, controls, "space")?;
+        let e = &self.expressions;
+        if e.names.len() != e.grid.len() {
+            return Err(format!(
+                "space expressions: {} names for {} modes",
+                e.names.len(),
+                e.grid.len()
+            ));
         }
-        Ok(())
+        let mut seen = std::collections::HashSet::new();
+        if let Some(name) = e.names.iter().find(|n| n.is_empty() || !seen.insert(n.as_str())) {
+            return Err(format!(
+                "space expressions: the name {name:?} is empty or repeated"
+            ));
+        }
+        check_mode_shapes(&e.grid, &e.structure, controls, "space expressions")
     }
 }
 
 impl From<SpaceModes> for RawSpace {
     fn from(s: SpaceModes) -> Self {
-        let mut bytes = Vec::with_capacity(s.grid.iter().map(|g| g.len() * 12).sum());
-        for d in s.grid.iter().flatten() {
-            for c in d.iter() {
-                bytes.extend_from_slice(&(*c as f32).to_le_bytes());
-            }
-        }
+        let expressions = (!s.expressions.is_empty()).then(|| RawExpressions {
+            grid_encoding: GRID_ENCODING.to_owned(),
+            grid: encode_grid(&s.expressions.grid),
+            names: s.expressions.names,
+            structure: s.expressions.structure,
+            note: s.expressions.note,
+        });
         RawSpace {
             modes: s.sigma.len(),
+            grid_encoding: GRID_ENCODING.to_owned(),
+            grid: encode_grid(&s.grid),
             sigma: s.sigma,
             structure: s.structure,
-            grid_encoding: GRID_ENCODING.to_owned(),
-            grid: base64::encode(bytes),
             note: s.note,
+            expressions,
         }
     }
 }
 
 impl RawSpace {
     fn decode(self, controls: usize) -> Result<SpaceModes, String> {
-        if self.grid_encoding != GRID_ENCODING {
-            return Err(format!(
-                "space: grid encoding {:?} is not supported (expected {GRID_ENCODING:?})",
-                self.grid_encoding
-            ));
-        }
-        let bytes =
-            base64::decode(&self.grid).map_err(|e| format!("space: the grid is not valid base64 ({e})"))?;
-        let expected = self.modes * controls * 12;
-        if bytes.len() != expected {
-            return Err(format!(
-                "space: the grid holds {} bytes; {} modes of {controls} control points need {expected}",
-                bytes.len(),
-                self.modes
-            ));
-        }
-        let values: Vec<Real> = bytes
-            .chunks_exact(4)
-            .map(|c| Real::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
-            .collect();
-        let grid = values
-            .chunks_exact(controls * 3)
-            .map(|mode| {
-                mode.chunks_exact(3)
-                    .map(|c| Vector3::new(c[0], c[1], c[2]))
-                    .collect()
-            })
-            .collect();
+        let grid = decode_grid(&self.grid_encoding, &self.grid, self.modes, controls, "space")?;
+        let expressions = match self.expressions {
+            None => ExpressionModes::default(),
+            Some(e) => ExpressionModes {
+                grid: decode_grid(
+                    &e.grid_encoding,
+                    &e.grid,
+                    e.names.len(),
+                    controls,
+                    "space expressions",
+                )?,
+                names: e.names,
+                structure: e.structure,
+                note: e.note,
+            },
+        };
         let space = SpaceModes {
             grid,
             structure: self.structure,
             sigma: self.sigma,
             note: self.note,
+            expressions,
         };
         space.check(controls)?;
         Ok(space)
@@ -776,9 +898,9 @@ impl ReferenceFace {
 }
 
 const FORMAT: &str = "splineface/reference";
-/// Version 2 added the optional `photo_structure`, version 3 the optional `space`; older
-/// files still load.
-const VERSION: u32 = 3;
+/// Version 2 added the optional `photo_structure`, version 3 the optional `space`, version 4
+/// its optional `expressions`; older files still load.
+const VERSION: u32 = 4;
 
 fn check_points(points: &[Point3<Real>], what: &str) -> Result<(), String> {
     if points.len() != POINT_COUNT {
@@ -846,6 +968,9 @@ impl TryFrom<RawReference> for ReferenceFace {
         }
         if raw.version < 3 && raw.space.is_some() {
             return Err("space needs format version 3".to_owned());
+        }
+        if raw.version < 4 && raw.space.as_ref().is_some_and(|s| s.expressions.is_some()) {
+            return Err("space expressions need format version 4".to_owned());
         }
         let controls = raw.surface.rows() * raw.surface.cols();
         let space = raw.space.map(|s| s.decode(controls)).transpose()?;

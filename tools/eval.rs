@@ -90,6 +90,7 @@ const LOCAL: Deformation = Deformation::Local {
 };
 const SPACE: Shape = Shape::Space {
     noise: Shape::DEFAULT_NOISE,
+    expressions: Some(Shape::DEFAULT_EXPRESSION_SIGMA),
 };
 
 const METHODS: [Method; 6] = [

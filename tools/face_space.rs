@@ -215,7 +215,7 @@ fn main() -> Result<()> {
     if let Some(path) = &args.write {
         let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
         let reference = ReferenceFace::from_json(&text).with_context(|| format!("{}", path.display()))?;
-        let space = ict.face_space(&reference, ict.modes)?;
+        let space = ict.with_expressions(ict.face_space(&reference, ict.modes)?, &reference)?;
         let note = format!(
             "The {} identity modes of ICT-FaceKit (Copyright (c) 2020 USC Institute for Creative Technologies, MIT licence), \
              each a per-vertex displacement of the mean face carried to this grid by tools/face_space --write; deviation 1 \
@@ -230,10 +230,11 @@ fn main() -> Result<()> {
         std::fs::write(&tmp, &json)?;
         std::fs::rename(&tmp, path)?;
         eprintln!(
-            "wrote {} ({} bytes, {} modes)",
+            "wrote {} ({} bytes, {} identity and {} expression modes)",
             path.display(),
             json.len(),
-            space.mode_count()
+            space.mode_count(),
+            space.expressions().len()
         );
         return Ok(());
     }

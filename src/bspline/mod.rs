@@ -47,7 +47,6 @@ mod surface;
 pub use basis::{basis_derivatives, basis_functions};
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use knots::{KnotVector, MAX_DEGREE};
-pub(crate) use space::solve_normal_equations;
 pub use space::{SpaceSamples, SurfaceSpace};
 pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives};
 

@@ -383,10 +383,7 @@ impl SurfaceSpace {
 /// Solves the symmetric positive definite normal equations of a weights fit by Cholesky, or
 /// refuses: dependent modes make the matrix singular to rounding, and weights that rounding
 /// chose would be meaningless (the threshold is relative to the largest diagonal entry).
-pub(crate) fn solve_normal_equations(
-    normal: DMatrix<Real>,
-    rhs: &DVector<Real>,
-) -> Result<Vec<Real>, BSplineError> {
+fn solve_normal_equations(normal: DMatrix<Real>, rhs: &DVector<Real>) -> Result<Vec<Real>, BSplineError> {
     let k = normal.nrows();
     let scale = (0..k).map(|a| normal[(a, a)]).fold(0.0, Real::max);
     let cholesky = nalgebra::linalg::Cholesky::new(normal);

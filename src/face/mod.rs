@@ -33,7 +33,7 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
-pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoSpaceFit, SpaceFit};
+pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).

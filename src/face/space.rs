@@ -2,14 +2,16 @@
 //! shape modes learnt from real faces, each carrying its displacement of the 40-point
 //! structure and a prior standard deviation.
 
-use nalgebra::{Point2, Point3, Similarity3, Vector3};
+use std::ops::AddAssign;
+
+use nalgebra::{DMatrix, DVector, Point2, Point3, Similarity3, Vector2, Vector3};
 
 use super::{DeformationReport, FaceError, FaceSurface};
 use crate::Real;
 use crate::bspline::{BSplineSurface, SpaceSamples, SurfaceSpace};
 use crate::depth::Pose;
 use crate::mesh::{ClosestPoints, TriangleMesh, front_hits};
-use crate::reference::ReferenceFace;
+use crate::reference::{ExpressionModes, ReferenceFace};
 use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
 
 /// A linear face space: the reference's surface and structure plus `K` modes,
@@ -19,7 +21,10 @@ use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
 /// ```
 ///
 /// with `F₀`, `S₀` the reference's surface and structure, `Dₖ` a displacement spline on its
-/// knots ([`SurfaceSpace`]) and `ΔSₖ` the same mode's displacement of the 40 points. The modes
+/// knots ([`SurfaceSpace`]) and `ΔSₖ` the same mode's displacement of the 40 points. A space
+/// may also carry expression modes (blendshapes, [`ExpressionModes`]) that add
+/// `Σₗ eₗ Eₗ` with `eₗ ∈ [0, 1]` on top of an identity: the identity is the person, the
+/// expression what one photo caught them doing. The modes
 /// come from per-vertex displacement fields of the scan the reference was fitted to
 /// ([`FaceSpace::from_displacements`]), so a member is the face the scan becomes under those
 /// displacements, seen through the reference's parametrisation.
@@ -28,6 +33,7 @@ pub struct FaceSpace {
     surfaces: SurfaceSpace,
     structure: SpaceSamples,
     sigma: Vec<Real>,
+    expressions: ExpressionModes,
 }
 
 /// A member of a [`FaceSpace`] fitted to data: its weights and where it sits.
@@ -55,7 +61,8 @@ impl FaceSpace {
     /// interpolated linearly inside each triangle) and fitted on the reference's knots with
     /// the fit's thin-plate weight ([`SurfaceSpace::fit_displacement`]); the structure's
     /// displacement is the iBUG points' displacement reduced like the points
-    /// ([`from_ibug68`]).
+    /// ([`from_ibug68`]). The space has no expressions
+    /// ([`FaceSpace::with_expression_displacements`] adds them).
     ///
     /// # Errors
     /// [`FaceError::Space`] when the scan is not the reference's (its front surface lies
@@ -69,91 +76,69 @@ impl FaceSpace {
         fields: &[Vec<Vector3<Real>>],
         sigma: &[Real],
     ) -> Result<Self, FaceError> {
-        let vertices = scan.positions().len();
-        let problem = |what: String| Err(FaceError::Space(what));
-        if landmarks.len() != IBUG_POINT_COUNT || landmarks.iter().any(|&v| v >= vertices) {
-            return problem(format!(
-                "{} landmark vertex indices given for a scan of {vertices} vertices; need 68 valid ones",
-                landmarks.len()
-            ));
-        }
         if sigma.len() != fields.len() {
-            return problem(format!("{} deviations for {} modes", sigma.len(), fields.len()));
+            return Err(FaceError::Space(format!(
+                "{} deviations for {} modes",
+                sigma.len(),
+                fields.len()
+            )));
         }
         if let Some(k) = sigma.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-            return problem(format!(
+            return Err(FaceError::Space(format!(
                 "mode {k}: deviation {} must be positive and finite",
                 sigma[k]
-            ));
+            )));
         }
-        for (k, field) in fields.iter().enumerate() {
-            if field.len() != vertices {
-                return problem(format!(
-                    "mode {k} has {} displacements for a scan of {vertices} vertices",
-                    field.len()
-                ));
-            }
-            if field.iter().any(|d| !d.iter().all(|c| c.is_finite())) {
-                return problem(format!("mode {k} has a displacement that is not finite"));
-            }
-        }
-
-        // The reference's sampling of its scan: the front-most surface over the frame.
-        let frame = reference.frame();
-        let options = reference.fit().options;
-        let raster = frame.raster(options.sample_spacing);
-        let mut hits = Vec::new();
-        let mut params = Vec::new();
-        for (index, hit) in front_hits(scan, &raster).into_iter().enumerate() {
-            let Some(hit) = hit else { continue };
-            let p = raster.position(index % raster.width, index / raster.width);
-            let uv = frame.parameters(p.x, p.y);
-            if (0.0..=1.0).contains(&uv.x)
-                && (0.0..=1.0).contains(&uv.y)
-                && reference.in_face_region(uv.x, uv.y)
-            {
-                params.push([uv.x, uv.y]);
-                hits.push((hit, Point3::new(p.x, p.y, hit.height)));
-            }
-        }
-        if params.len() < 16 {
-            return problem(format!(
-                "the scan covers only {} samples of the reference's face region: is it the reference's scan, in its canonical frame?",
-                params.len()
-            ));
-        }
-        // The scan must be the one the grid was fitted to: its front surface within the fit's
-        // residuals of the grid (the median against ten times the fit's median, and a unit).
-        let base = reference.surface().eval_many(&params)?;
-        let mut gaps: Vec<Real> = base.iter().zip(&hits).map(|(b, (_, p))| (b - p).norm()).collect();
-        gaps.sort_unstable_by(Real::total_cmp);
-        let median = gaps[gaps.len() / 2];
-        if median > 10.0 * reference.fit().median + 1.0 {
-            return problem(format!(
-                "the scan lies {median:.2} units from the reference's surface (median; the fit's own median is {:.3}): it is not the scan the reference was fitted to, or not in its canonical frame",
-                reference.fit().median
-            ));
-        }
-
-        let mut surfaces = SurfaceSpace::new(reference.surface().clone(), Vec::new())?;
-        let mut structure_modes = Vec::with_capacity(fields.len());
-        for field in fields {
-            let samples: Vec<Vector3<Real>> =
-                hits.iter().map(|(hit, _)| hit.interpolate(scan, field)).collect();
-            let (grid, _) = surfaces.fit_displacement(&params, &samples, options.smoothness)?;
-            surfaces = surfaces.with_mode(grid)?;
-            let ibug: Vec<Point3<Real>> = landmarks.iter().map(|&v| Point3::from(field[v])).collect();
-            let moved = from_ibug68(&ibug).map_err(|e| FaceError::Space(e.to_string()))?;
-            structure_modes.push(moved.into_iter().map(|p| p.coords).collect());
-        }
+        let (grid, structure) = Carrier::new(reference, scan, landmarks)?.carry(fields)?;
         Ok(FaceSpace {
-            surfaces,
+            surfaces: SurfaceSpace::new(reference.surface().clone(), grid)?,
             structure: SpaceSamples {
                 base: reference.structure().to_vec(),
-                modes: structure_modes,
+                modes: structure,
             },
             sigma: sigma.to_vec(),
+            expressions: ExpressionModes::default(),
         })
+    }
+
+    /// This space with expression modes (replacing any it had) made from displacement fields
+    /// of the reference's scan at each expression's full strength, carried to the reference
+    /// as [`FaceSpace::from_displacements`] carries identity modes. `note` says where they
+    /// came from.
+    ///
+    /// # Errors
+    /// As [`FaceSpace::from_displacements`], and [`FaceError::Space`] for names that are not
+    /// one per field, or empty or repeated.
+    pub fn with_expression_displacements(
+        mut self,
+        reference: &ReferenceFace,
+        scan: &TriangleMesh,
+        landmarks: &[usize],
+        names: &[String],
+        fields: &[Vec<Vector3<Real>>],
+        note: &str,
+    ) -> Result<Self, FaceError> {
+        if names.len() != fields.len() {
+            return Err(FaceError::Space(format!(
+                "{} expression names for {} fields",
+                names.len(),
+                fields.len()
+            )));
+        }
+        let (grid, structure) = Carrier::new(reference, scan, landmarks)?.carry(fields)?;
+        let expressions = ExpressionModes {
+            names: names.to_vec(),
+            grid,
+            structure,
+            note: note.to_owned(),
+        };
+        let mut modes = self.to_modes("");
+        modes.expressions = expressions;
+        modes
+            .check(self.surfaces.base().rows() * self.surfaces.base().cols())
+            .map_err(FaceError::Space)?;
+        self.expressions = modes.expressions;
+        Ok(self)
     }
 
     /// The space a reference stores ([`ReferenceFace::face_space`]) on `reference`: its
@@ -177,17 +162,31 @@ impl FaceSpace {
                 modes: modes.structure.clone(),
             },
             sigma: modes.sigma.clone(),
+            expressions: modes.expressions.clone(),
         })
     }
 
-    /// The space's modes as a reference stores them ([`ReferenceFace::with_space`]).
+    /// The space's modes as a reference stores them ([`ReferenceFace::with_space`]); `note`
+    /// is the identity modes' (the expressions keep their own).
     pub fn to_modes(&self, note: &str) -> crate::reference::SpaceModes {
         crate::reference::SpaceModes {
             grid: self.surfaces.modes().to_vec(),
             structure: self.structure.modes.clone(),
             sigma: self.sigma.clone(),
             note: note.to_owned(),
+            expressions: self.expressions.clone(),
         }
+    }
+
+    /// The expression modes (empty when the space has none).
+    pub fn expressions(&self) -> &ExpressionModes {
+        &self.expressions
+    }
+
+    /// This space without its expression modes.
+    pub fn without_expressions(mut self) -> Self {
+        self.expressions = ExpressionModes::default();
+        self
     }
 
     /// The surfaces of the space.
@@ -210,7 +209,7 @@ impl FaceSpace {
         &self.structure.modes
     }
 
-    /// The first `k` modes only.
+    /// The first `k` identity modes only (the expressions stay).
     pub fn truncated(&self, k: usize) -> Self {
         let k = k.min(self.mode_count());
         FaceSpace {
@@ -220,6 +219,7 @@ impl FaceSpace {
                 modes: self.structure.modes[..k].to_vec(),
             },
             sigma: self.sigma[..k].to_vec(),
+            expressions: self.expressions.clone(),
         }
     }
 
@@ -247,9 +247,65 @@ impl FaceSpace {
     /// # Errors
     /// As [`FaceSpace::structure`].
     pub fn face(&self, reference: &ReferenceFace, weights: &[Real]) -> Result<FaceSurface, FaceError> {
-        let surface = self.surfaces.surface(weights)?;
-        let structure = self.structure.member(weights);
+        self.face_with_expression(reference, weights, &[])
+    }
+
+    /// The member with an expression: identity `weights` and expression weights `expression`
+    /// (one per expression mode, each in `[0, 1]`; empty for the neutral face).
+    ///
+    /// # Errors
+    /// As [`FaceSpace::structure`], and [`FaceError::Option`] for expression weights that
+    /// are not one per mode in `[0, 1]`.
+    pub fn face_with_expression(
+        &self,
+        reference: &ReferenceFace,
+        weights: &[Real],
+        expression: &[Real],
+    ) -> Result<FaceSurface, FaceError> {
+        let structure = self.structure_with_expression(weights, expression)?;
+        let mut controls = self.surfaces.control_points(weights)?;
+        for (e, grid) in expression.iter().zip(&self.expressions.grid) {
+            for (c, d) in controls.iter_mut().zip(grid) {
+                *c += d * *e;
+            }
+        }
+        let base = self.surfaces.base();
+        let surface = BSplineSurface::new(
+            base.knots_u().clone(),
+            base.knots_v().clone(),
+            base.rows(),
+            base.cols(),
+            controls,
+        )?;
         FaceSurface::from_surface(reference, surface, structure)
+    }
+
+    /// The member's 40 points with an expression, as [`FaceSpace::face_with_expression`].
+    ///
+    /// # Errors
+    /// As [`FaceSpace::face_with_expression`].
+    pub fn structure_with_expression(
+        &self,
+        weights: &[Real],
+        expression: &[Real],
+    ) -> Result<Vec<Point3<Real>>, FaceError> {
+        let mut points = self.structure(weights)?;
+        if expression.is_empty() {
+            return Ok(points);
+        }
+        if expression.len() != self.expressions.len() || expression.iter().any(|e| !(0.0..=1.0).contains(e)) {
+            return Err(FaceError::Option {
+                name: "expression weights",
+                value: format!("{expression:?}"),
+                expected: "one per expression mode, each in [0, 1]",
+            });
+        }
+        for (e, mode) in expression.iter().zip(&self.expressions.structure) {
+            for (p, d) in points.iter_mut().zip(mode) {
+                *p += d * *e;
+            }
+        }
+        Ok(points)
     }
 
     /// The MAP fit of the space's structure to 40 target points in any frame: weights and a
@@ -418,11 +474,129 @@ impl FaceSpace {
     }
 }
 
+/// The reference's sampling of its own scan, which carries per-vertex displacement fields to
+/// displacement grids on the reference's knots and displacements of its 40 points.
+struct Carrier<'a> {
+    scan: &'a TriangleMesh,
+    landmarks: &'a [usize],
+    params: Vec<[Real; 2]>,
+    hits: Vec<crate::mesh::FrontHit>,
+    base: SurfaceSpace,
+    smoothness: Real,
+}
+
+impl<'a> Carrier<'a> {
+    fn new(
+        reference: &ReferenceFace,
+        scan: &'a TriangleMesh,
+        landmarks: &'a [usize],
+    ) -> Result<Self, FaceError> {
+        let vertices = scan.positions().len();
+        let problem = |what: String| Err(FaceError::Space(what));
+        if landmarks.len() != IBUG_POINT_COUNT || landmarks.iter().any(|&v| v >= vertices) {
+            return problem(format!(
+                "{} landmark vertex indices given for a scan of {vertices} vertices; need 68 valid ones",
+                landmarks.len()
+            ));
+        }
+        // The reference's sampling of its scan: the front-most surface over the frame.
+        let frame = reference.frame();
+        let options = reference.fit().options;
+        let raster = frame.raster(options.sample_spacing);
+        let mut hits = Vec::new();
+        let mut params = Vec::new();
+        let mut gaps = Vec::new();
+        let mut points = Vec::new();
+        for (index, hit) in front_hits(scan, &raster).into_iter().enumerate() {
+            let Some(hit) = hit else { continue };
+            let p = raster.position(index % raster.width, index / raster.width);
+            let uv = frame.parameters(p.x, p.y);
+            if (0.0..=1.0).contains(&uv.x)
+                && (0.0..=1.0).contains(&uv.y)
+                && reference.in_face_region(uv.x, uv.y)
+            {
+                params.push([uv.x, uv.y]);
+                points.push(Point3::new(p.x, p.y, hit.height));
+                hits.push(hit);
+            }
+        }
+        if params.len() < 16 {
+            return problem(format!(
+                "the scan covers only {} samples of the reference's face region: is it the reference's scan, in its canonical frame?",
+                params.len()
+            ));
+        }
+        // The scan must be the one the grid was fitted to: its front surface within the fit's
+        // residuals of the grid (the median against ten times the fit's median, and a unit).
+        let on_grid = reference.surface().eval_many(&params)?;
+        gaps.extend(on_grid.iter().zip(&points).map(|(b, p)| (b - p).norm()));
+        gaps.sort_unstable_by(Real::total_cmp);
+        let median = gaps[gaps.len() / 2];
+        if median > 10.0 * reference.fit().median + 1.0 {
+            return problem(format!(
+                "the scan lies {median:.2} units from the reference's surface (median; the fit's own median is {:.3}): it is not the scan the reference was fitted to, or not in its canonical frame",
+                reference.fit().median
+            ));
+        }
+        Ok(Carrier {
+            scan,
+            landmarks,
+            params,
+            hits,
+            base: SurfaceSpace::new(reference.surface().clone(), Vec::new())?,
+            smoothness: options.smoothness,
+        })
+    }
+
+    /// Each field's displacement grid and structure displacement.
+    #[allow(clippy::type_complexity)]
+    fn carry(
+        &self,
+        fields: &[Vec<Vector3<Real>>],
+    ) -> Result<(Vec<Vec<Vector3<Real>>>, Vec<Vec<Vector3<Real>>>), FaceError> {
+        let vertices = self.scan.positions().len();
+        let mut grids = Vec::with_capacity(fields.len());
+        let mut structures = Vec::with_capacity(fields.len());
+        for (k, field) in fields.iter().enumerate() {
+            if field.len() != vertices {
+                return Err(FaceError::Space(format!(
+                    "mode {k} has {} displacements for a scan of {vertices} vertices",
+                    field.len()
+                )));
+            }
+            if field.iter().any(|d| !d.iter().all(|c| c.is_finite())) {
+                return Err(FaceError::Space(format!(
+                    "mode {k} has a displacement that is not finite"
+                )));
+            }
+            let samples: Vec<Vector3<Real>> = self
+                .hits
+                .iter()
+                .map(|hit| hit.interpolate(self.scan, field))
+                .collect();
+            let (grid, _) = self
+                .base
+                .fit_displacement(&self.params, &samples, self.smoothness)?;
+            grids.push(grid);
+            let ibug: Vec<Point3<Real>> = self.landmarks.iter().map(|&v| Point3::from(field[v])).collect();
+            let moved = from_ibug68(&ibug).map_err(|e| FaceError::Space(e.to_string()))?;
+            structures.push(moved.into_iter().map(|p| p.coords).collect());
+        }
+        Ok((grids, structures))
+    }
+}
+
 /// The joint fit of a [`FaceSpace`] to photos' 2D points, from [`FaceSpace::fit_photos`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct PhotoSpaceFit {
     /// The identity weights shared by every photo.
     pub weights: Vec<Real>,
+    /// Per photo: its expression weights, one per expression mode in `[0, 1]` (empty when
+    /// the fit had no expressions, [`PhotoFitOptions::expression_sigma`]).
+    pub expressions: Vec<Vec<Real>>,
+    /// The expression modes' names, in the order of each photo's weights (empty when the fit
+    /// had none).
+    pub expression_names: Vec<String>,
     /// Per photo: its scaled orthographic pose and where the structure's origin projects
     /// (`y` up), so that point `X` is seen at `offset + s·P·R·X`.
     pub poses: Vec<(Pose, Point2<Real>)>,
@@ -440,30 +614,47 @@ pub struct PhotoSpaceFit {
 /// prior puts 0.3% of faces there).
 pub const PLAUSIBLE_SIGMAS: Real = 3.0;
 
+/// Options of [`FaceSpace::fit_photos`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PhotoFitOptions {
+    /// `ε`, the points' error per coordinate in canonical units: with the identity prior it
+    /// sets how far the landmarks may pull the shape from the mean.
+    pub noise: Real,
+    /// `τ`, the prior deviation of each photo's expression weights (a Gaussian on
+    /// `[0, 1]`, centred on the neutral face), or `None` to fit no expressions (every photo
+    /// neutral). Ignored for a space without expression modes.
+    pub expression_sigma: Option<Real>,
+}
+
 impl FaceSpace {
     /// The MAP fit of the space to photos' 2D points under scaled orthographic cameras:
-    /// identity weights `w` shared by all photos and a pose and offset per photo minimising
+    /// identity weights `w` shared by all photos, and per photo `i` a pose, an offset and
+    /// (when the space has expression modes and [`PhotoFitOptions::expression_sigma`] asks
+    /// for them) expression weights `eᵢ ∈ [0, 1]ᴸ`, minimising
     ///
     /// ```text
-    /// Σᵢ Σⱼ ωⱼ ‖oᵢ + sᵢ P Rᵢ S(w)ⱼ − xᵢⱼ‖² / (sᵢ² ε²)  +  Σₖ wₖ² / σₖ²
+    /// Σᵢ Σⱼ ωⱼ ‖oᵢ + sᵢ P Rᵢ (S(w) + E eᵢ)ⱼ − xᵢⱼ‖² / (sᵢ² ε²)  +  Σₖ wₖ² / σₖ²  +  Σᵢ ‖eᵢ‖² / τ²
     /// ```
     ///
-    /// (reprojection errors measured in canonical units, `ε` per coordinate), by alternating
-    /// the poses (closed form, then Levenberg–Marquardt, on centred points) and the weights
-    /// (linear, summed over the photos first, so that the cost does not grow with their number)
-    /// until the weights settle; a weight beyond [`PLAUSIBLE_SIGMAS`] prior deviations is then
+    /// (reprojection errors measured in canonical units, `ε` per coordinate, `E eᵢ` the
+    /// expressions' displacement of the structure), by alternating the poses (closed form,
+    /// then Levenberg–Marquardt, on centred points), the identity (linear, summed over the
+    /// photos first, so that the cost does not grow with their number) and each photo's
+    /// expression (a bounded least-squares problem, by projected Gauss–Seidel) until the
+    /// weights settle; an identity weight beyond [`PLAUSIBLE_SIGMAS`] prior deviations is then
     /// held there ([`PhotoSpaceFit::held`]). `views[i]` are photo `i`'s 40 points with `y` up
     /// ([`crate::align::PhotoPoints::y_up`]).
     ///
     /// # Errors
-    /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise that is not
-    /// positive or point weights that are negative or all zero; [`FaceError::Degenerate`]
-    /// when a photo's pose is not determined; [`FaceError::Kernel`] when the weights are not.
+    /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise or an
+    /// expression deviation that is not positive, or point weights that are negative or all
+    /// zero; [`FaceError::Degenerate`] when a photo's pose is not determined;
+    /// [`FaceError::Kernel`] when the weights are not.
     pub fn fit_photos(
         &self,
         views: &[Vec<Point2<Real>>],
         point_weights: &[Real; POINT_COUNT],
-        noise: Real,
+        options: &PhotoFitOptions,
     ) -> Result<PhotoSpaceFit, FaceError> {
         let bad = |name: &'static str, value: String, expected: &'static str| {
             Err(FaceError::Option {
@@ -481,8 +672,14 @@ impl FaceSpace {
         {
             return bad("view", i.to_string(), "40 finite points");
         }
+        let noise = options.noise;
         if !(noise > 0.0 && noise.is_finite()) {
             return bad("noise", noise.to_string(), "positive and finite");
+        }
+        if let Some(tau) = options.expression_sigma
+            && !(tau > 0.0 && tau.is_finite())
+        {
+            return bad("expression deviation", tau.to_string(), "positive and finite");
         }
         let total: Real = point_weights.iter().sum();
         if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || total <= 0.0 {
@@ -496,90 +693,97 @@ impl FaceSpace {
             points
                 .iter()
                 .zip(point_weights)
-                .fold(nalgebra::Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
+                .fold(Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
                 / total
         };
-        let ridge = self.ridge(noise);
+        let expression_modes: &[Vec<Vector3<Real>>] = match options.expression_sigma {
+            Some(_) => &self.expressions.structure,
+            None => &[],
+        };
+        let problem = JointProblem::new(
+            self,
+            expression_modes,
+            point_weights,
+            noise,
+            options.expression_sigma.unwrap_or(1.0),
+        );
+
+        // The start: every photo's pose for the mean face (closed form, then refined), neutral.
+        let mean = &self.structure.base;
+        let mean_centre = mean
+            .iter()
+            .zip(point_weights)
+            .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
+            / total;
+        let centred_mean: Vec<Point3<Real>> = mean.iter().map(|p| p - mean_centre).collect();
+        let mut photos = Vec::with_capacity(views.len());
+        for view in views {
+            let centre = centroid(view);
+            let points: Vec<Vector2<Real>> = view.iter().map(|p| p.coords - centre).collect();
+            let flat: Vec<Point2<Real>> = points.iter().map(|p| Point2::from(*p)).collect();
+            let start = crate::depth::closed_form_pose(&flat, &centred_mean, point_weights).ok_or(
+                FaceError::Degenerate("seen in a photo whose points do not fix a pose"),
+            )?;
+            let pose = crate::depth::refine_pose(start, &flat, &centred_mean, point_weights);
+            // The structure's origin sits where the mean face's centre projects minus its image.
+            let seen = pose.rotation * mean_centre;
+            photos.push(PhotoUnknowns {
+                rotation: pose.rotation,
+                relative_scale: 1.0,
+                shift: -Vector2::new(seen.x, seen.y),
+                expression: vec![0.0; expression_modes.len()],
+                targets: points.iter().map(|p| p / pose.scale).collect(),
+                centre,
+                unit: pose.scale,
+            });
+        }
         let mut weights = vec![0.0; self.mode_count()];
-        let mut poses = vec![
-            (
-                Pose::from_yaw_pitch_roll_degrees(0.0, 0.0, 0.0, 1.0),
-                Point2::origin()
-            );
-            views.len()
-        ];
+        let mut cost = problem.cost(&weights, &photos);
+        let mut damping = 1e-4;
         let mut iterations = 0;
-        for iteration in 0..100 {
-            iterations = iteration + 1;
-            // Poses for the current shape, on centred points (the offset is then closed form).
-            let shape = self.structure.member(&weights);
-            let shape_centre = shape
-                .iter()
-                .zip(point_weights)
-                .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
-                / total;
-            let centred: Vec<Point3<Real>> = shape.iter().map(|p| p - shape_centre).collect();
-            for (view, pose) in views.iter().zip(poses.iter_mut()) {
-                let view_centre = centroid(view);
-                let flat: Vec<Point2<Real>> = view.iter().map(|p| p - view_centre).collect();
-                let start = if iteration == 0 {
-                    crate::depth::closed_form_pose(&flat, &centred, point_weights).ok_or(
-                        FaceError::Degenerate("seen in a photo whose points do not fix a pose"),
-                    )?
-                } else {
-                    pose.0
-                };
-                let refined = crate::depth::refine_pose(start, &flat, &centred, point_weights);
-                let projected_centre = refined.project(&Point3::from(shape_centre));
-                pose.0 = refined;
-                pose.1 = Point2::from(view_centre - projected_centre.coords);
-            }
-            // Weights for the poses. With every photo's residual in canonical units,
-            // rᵢⱼ = P Rᵢ S(w)ⱼ − (xᵢⱼ − oᵢ)/sᵢ, the normal equations only need, per point,
-            // Mⱼ-free sums over the photos: Σᵢ Rᵢᵀ Pᵀ P Rᵢ (one 3 × 3 matrix for all points) and
-            // Σᵢ Rᵢᵀ Pᵀ (xᵢⱼ − oᵢ)/sᵢ (one vector per point), so that the cost does not grow
-            // with the number of photos.
-            let mut m = nalgebra::Matrix3::<Real>::zeros();
-            let mut pulled = vec![Vector3::<Real>::zeros(); POINT_COUNT];
-            for (view, (pose, offset)) in views.iter().zip(&poses) {
-                let r = pose.rotation.matrix();
-                let rows = r.fixed_rows::<2>(0);
-                m += rows.transpose() * rows;
-                for j in 0..POINT_COUNT {
-                    let x = (view[j] - offset) / pose.scale;
-                    pulled[j] += rows.transpose() * x;
+        // Levenberg–Marquardt with a backtracking search along each direction: the clamping of
+        // the expression weights makes a full step overshoot where a mode reaches a bound, and
+        // halving the step is far cheaper than a new direction.
+        for _ in 0..100 {
+            iterations += 1;
+            let Some(direction) = problem.step(&weights, &photos, damping) else {
+                damping *= 10.0;
+                if damping > 1e8 {
+                    break;
                 }
-            }
-            let k = self.mode_count();
-            let base = &self.structure.base;
-            let modes = &self.structure.modes;
-            let mut normal = nalgebra::DMatrix::<Real>::zeros(k, k);
-            let mut rhs = nalgebra::DVector::<Real>::zeros(k);
-            for j in 0..POINT_COUNT {
-                let wj = point_weights[j];
-                if wj == 0.0 {
-                    continue;
+                continue;
+            };
+            let mut accepted = None;
+            let mut alpha = 1.0;
+            for _ in 0..6 {
+                let (next_weights, next_photos) =
+                    JointProblem::moved_along(&weights, &photos, &direction, alpha);
+                let next_cost = problem.cost(&next_weights, &next_photos);
+                if next_cost.is_finite() && next_cost <= cost {
+                    accepted = Some((next_weights, next_photos, next_cost));
+                    break;
                 }
-                let residual = pulled[j] - m * base[j].coords;
-                let mapped: Vec<Vector3<Real>> = modes.iter().map(|mode| m * mode[j]).collect();
-                for a in 0..k {
-                    rhs[a] += wj * modes[a][j].dot(&residual);
-                    for b in a..k {
-                        normal[(a, b)] += wj * modes[a][j].dot(&mapped[b]);
+                alpha /= 2.0;
+            }
+            match accepted {
+                Some((next_weights, next_photos, next_cost)) => {
+                    let decrease = cost - next_cost;
+                    weights = next_weights;
+                    photos = next_photos;
+                    cost = next_cost;
+                    if alpha == 1.0 {
+                        damping = (damping / 10.0).max(1e-12);
+                    }
+                    if decrease <= 1e-10 * cost.max(Real::MIN_POSITIVE) {
+                        break;
                     }
                 }
-            }
-            for a in 0..k {
-                for b in 0..a {
-                    normal[(a, b)] = normal[(b, a)];
+                None => {
+                    damping *= 10.0;
+                    if damping > 1e8 {
+                        break;
+                    }
                 }
-                normal[(a, a)] += ridge[a];
-            }
-            let next = crate::bspline::solve_normal_equations(normal, &rhs)?;
-            let change = largest_change(&next, &weights);
-            weights = next;
-            if change < 1e-7 {
-                break;
             }
         }
         // Weights outside the prior's plausible range are held at its edge, and named.
@@ -591,28 +795,341 @@ impl FaceSpace {
                 held.push(k);
             }
         }
-        let shape = self.structure.member(&weights);
-        let rms_units = views
+        let identity = self.structure.member(&weights);
+        let rms_units = photos
             .iter()
-            .zip(&poses)
-            .map(|(view, (pose, offset))| {
-                let sum: Real = view
+            .map(|photo| {
+                let shape = problem.shape(&identity, &photo.expression);
+                let sum: Real = problem
+                    .residuals(photo, &shape)
                     .iter()
-                    .zip(&shape)
                     .zip(point_weights)
-                    .map(|((x, p), w)| w * ((offset + pose.project(p).coords) - x).norm_squared())
+                    .map(|(r, w)| w * r.norm_squared())
                     .sum();
-                (sum / total).sqrt() / pose.scale
+                // From the photo's fixed unit to its fitted scale's canonical units.
+                (sum / total).sqrt() / photo.relative_scale
             })
             .collect();
         Ok(PhotoSpaceFit {
             weights,
-            poses,
+            expression_names: if expression_modes.is_empty() {
+                Vec::new()
+            } else {
+                self.expressions.names.clone()
+            },
+            poses: photos
+                .iter()
+                .map(|p| {
+                    let pose = Pose {
+                        rotation: p.rotation,
+                        scale: p.relative_scale * p.unit,
+                    };
+                    (pose, Point2::from(p.centre + p.shift * p.unit))
+                })
+                .collect(),
+            expressions: photos.into_iter().map(|p| p.expression).collect(),
             rms_units,
             iterations,
             held,
         })
     }
+}
+
+/// One photo's unknowns in [`FaceSpace::fit_photos`]. Its camera `x = o + s P R X` is
+/// written `s = b s₀`, `o = x̄ + s₀ d` with `x̄` the view's weighted centroid and `s₀` the
+/// scale of its starting pose (fixed), so that the residual of point `j`,
+/// `rⱼ = b P R Xⱼ + d − (xⱼ − x̄)/s₀`, is measured in a fixed unit per photo (about a
+/// canonical unit). A unit that followed the fitted scale would reward shrinking the face: the
+/// scale and the face's size trade against each other exactly under these cameras, and only the
+/// prior should decide the size.
+#[derive(Clone)]
+struct PhotoUnknowns {
+    rotation: nalgebra::Rotation3<Real>,
+    /// `b`.
+    relative_scale: Real,
+    /// `d`.
+    shift: Vector2<Real>,
+    expression: Vec<Real>,
+    /// `(xⱼ − x̄)/s₀`.
+    targets: Vec<Vector2<Real>>,
+    /// `x̄`.
+    centre: Vector2<Real>,
+    /// `s₀`.
+    unit: Real,
+}
+
+/// The constants of [`FaceSpace::fit_photos`]'s Levenberg–Marquardt iterations over all
+/// unknowns at once (identity weights, and per photo its rotation, `a`, `c` and expression),
+/// solved by eliminating each photo's unknowns (a Schur complement onto the identity weights).
+///
+/// A photo's normal-equation blocks between modes only involve `Rᵀ Pᵀ P R = I − n nᵀ` (`n` its
+/// view direction, the rotation's third row), so they are `Σₐᵦ (δₐᵦ − nₐ nᵦ) Fₐᵦ` with
+/// `Fₐᵦ = Σⱼ ωⱼ Dⱼ[a]ᵀ D'ⱼ[b]` over the modes' displacements, computed once per fit: a photo's
+/// blocks then cost 9 matrix sums whatever the number of points.
+struct JointProblem<'a> {
+    space: &'a FaceSpace,
+    expressions: &'a [Vec<Vector3<Real>>],
+    point_weights: &'a [Real; POINT_COUNT],
+    /// `ε² / σₖ²` per identity mode.
+    ridge: Vec<Real>,
+    /// `ε² / τ²`.
+    expression_ridge: Real,
+    /// `Fₐᵦ` identity × identity, expression × expression and expression × identity.
+    identity_products: [[DMatrix<Real>; 3]; 3],
+    expression_products: [[DMatrix<Real>; 3]; 3],
+    cross_products: [[DMatrix<Real>; 3]; 3],
+}
+
+impl<'a> JointProblem<'a> {
+    fn new(
+        space: &'a FaceSpace,
+        expressions: &'a [Vec<Vector3<Real>>],
+        point_weights: &'a [Real; POINT_COUNT],
+        noise: Real,
+        expression_sigma: Real,
+    ) -> Self {
+        let identity = &space.structure.modes;
+        let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| {
+            std::array::from_fn(|a| {
+                std::array::from_fn(|b| {
+                    DMatrix::from_fn(left.len(), right.len(), |l, m| {
+                        (0..POINT_COUNT)
+                            .map(|j| point_weights[j] * left[l][j][a] * right[m][j][b])
+                            .sum()
+                    })
+                })
+            })
+        };
+        JointProblem {
+            space,
+            expressions,
+            point_weights,
+            ridge: space.ridge(noise),
+            expression_ridge: (noise / expression_sigma).powi(2),
+            identity_products: products(identity, identity),
+            expression_products: products(expressions, expressions),
+            cross_products: products(expressions, identity),
+        }
+    }
+
+    /// `Σₐᵦ Mₐᵦ Fₐᵦ`.
+    fn contract(products: &[[DMatrix<Real>; 3]; 3], m: &nalgebra::Matrix3<Real>) -> DMatrix<Real> {
+        let mut sum = DMatrix::zeros(products[0][0].nrows(), products[0][0].ncols());
+        for a in 0..3 {
+            for b in 0..3 {
+                if m[(a, b)] != 0.0 {
+                    sum += &products[a][b] * m[(a, b)];
+                }
+            }
+        }
+        sum
+    }
+
+    /// The identity's points moved by an expression.
+    fn shape(&self, identity: &[Point3<Real>], expression: &[Real]) -> Vec<Point3<Real>> {
+        let mut shape = identity.to_vec();
+        for (e, mode) in expression.iter().zip(self.expressions) {
+            if *e != 0.0 {
+                for (p, d) in shape.iter_mut().zip(mode) {
+                    *p += d * *e;
+                }
+            }
+        }
+        shape
+    }
+
+    /// The photo's residuals for a shape, in its unit.
+    fn residuals(&self, photo: &PhotoUnknowns, shape: &[Point3<Real>]) -> Vec<Vector2<Real>> {
+        let rows = photo.rotation.matrix().fixed_rows::<2>(0) * photo.relative_scale;
+        shape
+            .iter()
+            .zip(&photo.targets)
+            .map(|(x, y)| rows * x.coords + photo.shift - y)
+            .collect()
+    }
+
+    /// The objective (times `ε²`).
+    fn cost(&self, weights: &[Real], photos: &[PhotoUnknowns]) -> Real {
+        let identity = self.space.structure.member(weights);
+        let mut cost: Real = weights.iter().zip(&self.ridge).map(|(w, r)| r * w * w).sum();
+        for photo in photos {
+            if !(photo.relative_scale > 0.0) {
+                return Real::INFINITY;
+            }
+            let shape = self.shape(&identity, &photo.expression);
+            cost += self
+                .residuals(photo, &shape)
+                .iter()
+                .zip(self.point_weights)
+                .map(|(r, w)| w * r.norm_squared())
+                .sum::<Real>();
+            cost += self.expression_ridge * photo.expression.iter().map(|e| e * e).sum::<Real>();
+        }
+        cost
+    }
+
+    /// The damped Gauss–Newton direction from `weights` and `photos`; `None` when a system
+    /// is not positive definite. Expression weights at a bound whose gradient points out of
+    /// `[0, 1]` are held there; the others are clamped to it along the direction
+    /// ([`JointProblem::moved_along`]).
+    fn step(&self, weights: &[Real], photos: &[PhotoUnknowns], damping: Real) -> Option<Direction> {
+        let k = weights.len();
+        let identity = self.space.structure.member(weights);
+        let modes = &self.space.structure.modes;
+        let mut summed = nalgebra::Matrix3::zeros();
+        let mut rhs = DVector::from_iterator(k, weights.iter().zip(&self.ridge).map(|(w, r)| r * w));
+        // Per photo: its free expression modes, and H⁻¹ [H_lw | g_l].
+        let mut eliminated = Vec::with_capacity(photos.len());
+        let mut schur = DMatrix::<Real>::zeros(k, k);
+        for photo in photos {
+            let r = photo.rotation.matrix();
+            let b = photo.relative_scale;
+            let rows = r.fixed_rows::<2>(0) * b;
+            let n = r.row(2).transpose();
+            let m = (nalgebra::Matrix3::identity() - n * n.transpose()) * (b * b);
+            summed += m;
+            let shape = self.shape(&identity, &photo.expression);
+            let residuals = self.residuals(photo, &shape);
+            // The expression gradient decides which modes are free.
+            let mut pulled = Vec::with_capacity(POINT_COUNT); // ωⱼ (P R)ᵀ rⱼ
+            for (res, w) in residuals.iter().zip(self.point_weights) {
+                pulled.push(rows.transpose() * res * *w);
+            }
+            let free: Vec<usize> = (0..self.expressions.len())
+                .filter(|&l| {
+                    let e = photo.expression[l];
+                    let g: Real = self.expressions[l]
+                        .iter()
+                        .zip(&pulled)
+                        .map(|(d, p)| d.dot(p))
+                        .sum::<Real>()
+                        + self.expression_ridge * e;
+                    !((e <= 0.0 && g > 0.0) || (e >= 1.0 && g < 0.0))
+                })
+                .collect();
+            let local = 6 + free.len();
+            let mut h = DMatrix::<Real>::zeros(local, local);
+            let mut hw = DMatrix::<Real>::zeros(local, k);
+            let mut g = DVector::<Real>::zeros(local);
+            for j in 0..POINT_COUNT {
+                let wj = self.point_weights[j];
+                if wj == 0.0 {
+                    continue;
+                }
+                let x = shape[j].coords;
+                // ∂r/∂(δ, b, d): −b P R [X]×, P R X, I.
+                let cross = x.cross_matrix();
+                let jr = -(rows * cross);
+                let mut jp = nalgebra::Matrix2x6::<Real>::zeros();
+                jp.fixed_view_mut::<2, 3>(0, 0).copy_from(&jr);
+                jp.set_column(3, &(rows * x / b));
+                jp[(0, 4)] = 1.0;
+                jp[(1, 5)] = 1.0;
+                let jpt = jp.transpose() * wj;
+                h.fixed_view_mut::<6, 6>(0, 0).add_assign(&(jpt * jp));
+                g.fixed_rows_mut::<6>(0).add_assign(&(jpt * residuals[j]));
+                for (c, mode) in modes.iter().enumerate() {
+                    let v = rows * mode[j];
+                    hw.fixed_view_mut::<6, 1>(0, c).add_assign(&(jpt * v));
+                    rhs[c] += v.dot(&residuals[j]) * wj;
+                }
+                for (f, &l) in free.iter().enumerate() {
+                    let u = rows * self.expressions[l][j];
+                    h.fixed_view_mut::<6, 1>(0, 6 + f).add_assign(&(jpt * u));
+                }
+            }
+            if !free.is_empty() {
+                let ee = Self::contract(&self.expression_products, &m);
+                let ew = Self::contract(&self.cross_products, &m);
+                for (f, &l) in free.iter().enumerate() {
+                    for (f2, &l2) in free.iter().enumerate() {
+                        h[(6 + f, 6 + f2)] = ee[(l, l2)];
+                    }
+                    h[(6 + f, 6 + f)] += self.expression_ridge;
+                    for c in 0..k {
+                        hw[(6 + f, c)] = ew[(l, c)];
+                    }
+                    g[6 + f] = self.expressions[l]
+                        .iter()
+                        .zip(&pulled)
+                        .map(|(d, p)| d.dot(p))
+                        .sum::<Real>()
+                        + self.expression_ridge * photo.expression[l];
+                }
+                for a in 0..6 {
+                    for f in 0..free.len() {
+                        h[(6 + f, a)] = h[(a, 6 + f)];
+                    }
+                }
+            }
+            for d in 0..local {
+                h[(d, d)] *= 1.0 + damping;
+            }
+            let cholesky = nalgebra::linalg::Cholesky::new(h)?;
+            let mut stacked = DMatrix::<Real>::zeros(local, k + 1);
+            stacked.columns_mut(0, k).copy_from(&hw);
+            stacked.set_column(k, &g);
+            let solved = cholesky.solve(&stacked);
+            let product = hw.transpose() * &solved;
+            schur -= product.columns(0, k);
+            rhs -= product.column(k);
+            eliminated.push((free, solved));
+        }
+        let mut whole = Self::contract(&self.identity_products, &summed);
+        for c in 0..k {
+            whole[(c, c)] = (whole[(c, c)] + self.ridge[c]) * (1.0 + damping);
+        }
+        schur += whole;
+        let step_w = -nalgebra::linalg::Cholesky::new(schur)?.solve(&rhs);
+        let photos = eliminated
+            .into_iter()
+            .map(|(free, solved)| {
+                let step = -(solved.column(k) + solved.columns(0, k) * &step_w);
+                (free, step)
+            })
+            .collect();
+        Some(Direction {
+            weights: step_w,
+            photos,
+        })
+    }
+
+    /// The state `α` along `direction`, the expression weights clamped to `[0, 1]`.
+    fn moved_along(
+        weights: &[Real],
+        photos: &[PhotoUnknowns],
+        direction: &Direction,
+        alpha: Real,
+    ) -> (Vec<Real>, Vec<PhotoUnknowns>) {
+        let next_weights = weights
+            .iter()
+            .zip(direction.weights.iter())
+            .map(|(w, d)| w + alpha * d)
+            .collect();
+        let next_photos = photos
+            .iter()
+            .zip(&direction.photos)
+            .map(|(photo, (free, step))| {
+                let mut next = photo.clone();
+                let turn = Vector3::new(step[0], step[1], step[2]) * alpha;
+                next.rotation = photo.rotation * nalgebra::Rotation3::new(turn);
+                next.relative_scale += alpha * step[3];
+                next.shift += Vector2::new(step[4], step[5]) * alpha;
+                for (f, &l) in free.iter().enumerate() {
+                    next.expression[l] = (photo.expression[l] + alpha * step[6 + f]).clamp(0.0, 1.0);
+                }
+                next
+            })
+            .collect();
+        (next_weights, next_photos)
+    }
+}
+
+/// A Gauss–Newton step of [`JointProblem`]: the identity weights' change, and per photo its
+/// free expression modes and the change of `(δ, b, d, e_free)`.
+struct Direction {
+    weights: DVector<Real>,
+    photos: Vec<(Vec<usize>, DVector<Real>)>,
 }
 
 /// The largest change of any weight between two iterations.

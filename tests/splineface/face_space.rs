@@ -5,7 +5,7 @@
 use std::sync::OnceLock;
 
 use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
-use splineface::face::{DenseFitOptions, FaceError, FaceSpace};
+use splineface::face::{DenseFitOptions, FaceError, FaceSpace, PhotoFitOptions};
 use splineface::mesh::TriangleMesh;
 use splineface::reference::{ReferenceFace, ReferenceOptions, build_reference};
 use splineface::structure::POINT_COUNT;
@@ -50,6 +50,14 @@ fn fields(mesh: &TriangleMesh) -> Vec<Vec<Vector3<f64>>> {
     f.iter()
         .map(|f| mesh.positions().iter().map(f).collect())
         .collect()
+}
+
+/// Photo-fit options with noise `noise` and no expressions.
+fn neutral(noise: f64) -> PhotoFitOptions {
+    PhotoFitOptions {
+        noise,
+        expression_sigma: None,
+    }
 }
 
 fn space() -> FaceSpace {
@@ -208,7 +216,9 @@ fn the_photo_fit_recovers_weights_and_poses_from_projections() {
         .zip(&offsets)
         .map(|(pose, o)| shape.iter().map(|p| o + pose.project(p).coords).collect())
         .collect();
-    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e-6).unwrap();
+    let fit = space
+        .fit_photos(&views, &[1.0; POINT_COUNT], &neutral(1e-6))
+        .unwrap();
     for (w, t) in fit.weights.iter().zip(&truth) {
         assert!((w - t).abs() < 1e-4, "{:?} against {truth:?}", fit.weights);
     }
@@ -219,15 +229,17 @@ fn the_photo_fit_recovers_weights_and_poses_from_projections() {
     }
     assert!(fit.rms_units.iter().all(|r| *r < 1e-5), "{:?}", fit.rms_units);
     // A huge noise keeps the prior's mean.
-    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e6).unwrap();
+    let fit = space
+        .fit_photos(&views, &[1.0; POINT_COUNT], &neutral(1e6))
+        .unwrap();
     assert!(fit.weights.iter().all(|w| w.abs() < 1e-3), "{:?}", fit.weights);
     // Bad input.
     assert!(matches!(
-        space.fit_photos(&[], &[1.0; POINT_COUNT], 1.0),
+        space.fit_photos(&[], &[1.0; POINT_COUNT], &neutral(1.0)),
         Err(FaceError::Option { .. })
     ));
     assert!(matches!(
-        space.fit_photos(&views, &[0.0; POINT_COUNT], 1.0),
+        space.fit_photos(&views, &[0.0; POINT_COUNT], &neutral(1.0)),
         Err(FaceError::Option { .. })
     ));
 }
@@ -310,7 +322,9 @@ fn implausible_weights_are_held_at_the_priors_edge_and_named() {
             shape.iter().map(|p| pose.project(p)).collect()
         })
         .collect();
-    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], 1e-6).unwrap();
+    let fit = space
+        .fit_photos(&views, &[1.0; POINT_COUNT], &neutral(1e-6))
+        .unwrap();
     assert_eq!(fit.held, vec![2]);
     assert!(
         (fit.weights[2] - PLAUSIBLE_SIGMAS).abs() < 1e-12,
@@ -318,4 +332,139 @@ fn implausible_weights_are_held_at_the_priors_edge_and_named() {
         fit.weights
     );
     assert!((fit.weights[0] - 0.5).abs() < 1e-3, "{:?}", fit.weights);
+}
+
+/// The synthetic space with two expression modes: a smile-like lift of the face's sides and a
+/// bulge growing down the face (neither a similarity nor an identity field).
+fn expressive_space() -> FaceSpace {
+    let (mesh, reference) = fixture();
+    type Field = fn(&Point3<f64>) -> Vector3<f64>;
+    let f: [Field; 2] = [
+        |p| Vector3::new(0.0, 0.002 * p.x * p.x, 0.0),
+        |p| Vector3::new(0.0, 0.0, 0.0015 * p.y * p.y),
+    ];
+    let fields: Vec<Vec<Vector3<f64>>> = f
+        .iter()
+        .map(|f| mesh.positions().iter().map(f).collect())
+        .collect();
+    let names = ["smile".to_owned(), "bulge".to_owned()];
+    space()
+        .with_expression_displacements(reference, mesh, &landmarks(mesh), &names, &fields, "test")
+        .unwrap()
+}
+
+#[test]
+fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
+    use nalgebra::Point2;
+    use splineface::depth::Pose;
+    let space = expressive_space();
+    assert_eq!(space.expressions().names, ["smile", "bulge"]);
+    let identity = [0.5, -0.8, 0.3];
+    let expressions = [[0.6, 0.0], [0.2, 0.7], [0.0, 0.4], [0.9, 0.9]];
+    let poses = [
+        Pose::from_yaw_pitch_roll_degrees(-35.0, 5.0, 3.0, 4.0),
+        Pose::from_yaw_pitch_roll_degrees(0.0, -10.0, -5.0, 3.0),
+        Pose::from_yaw_pitch_roll_degrees(40.0, 8.0, 0.0, 5.0),
+        Pose::from_yaw_pitch_roll_degrees(15.0, 20.0, 8.0, 2.0),
+    ];
+    let views: Vec<Vec<Point2<f64>>> = poses
+        .iter()
+        .zip(&expressions)
+        .map(|(pose, e)| {
+            let shape = space.structure_with_expression(&identity, e).unwrap();
+            shape
+                .iter()
+                .map(|p| Point2::new(100.0, 50.0) + pose.project(p).coords)
+                .collect()
+        })
+        .collect();
+    let options = PhotoFitOptions {
+        noise: 1e-6,
+        expression_sigma: Some(1e3),
+    };
+    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], &options).unwrap();
+    for (w, t) in fit.weights.iter().zip(&identity) {
+        assert!((w - t).abs() < 1e-4, "{:?} against {identity:?}", fit.weights);
+    }
+    assert_eq!(fit.expression_names, ["smile", "bulge"]);
+    for (found, truth) in fit.expressions.iter().zip(&expressions) {
+        for (f, t) in found.iter().zip(truth) {
+            assert!(
+                (f - t).abs() < 1e-4,
+                "{:?} against {expressions:?}",
+                fit.expressions
+            );
+        }
+    }
+    for ((pose, _), truth) in fit.poses.iter().zip(&poses) {
+        assert!(pose.angle_to_degrees(truth) < 1e-3);
+        assert!((pose.scale / truth.scale - 1.0).abs() < 1e-5);
+    }
+    assert!(fit.rms_units.iter().all(|r| *r < 1e-5), "{:?}", fit.rms_units);
+    // Without expressions the same photos leave residuals, and the identity absorbs what it can.
+    let neutral_fit = space
+        .fit_photos(&views, &[1.0; POINT_COUNT], &neutral(1e-6))
+        .unwrap();
+    assert!(neutral_fit.expressions.iter().all(Vec::is_empty));
+    assert!(
+        neutral_fit.rms_units.iter().any(|r| *r > 0.1),
+        "{:?}",
+        neutral_fit.rms_units
+    );
+    // An expression the photo does not show in its positive range stays at the bound: a
+    // frown (the smile at −0.5) is not a smile.
+    let frown = space.structure(&identity).unwrap();
+    let smile = &space.expressions().structure[0];
+    let views: Vec<Vec<Point2<f64>>> = poses
+        .iter()
+        .map(|pose| {
+            frown
+                .iter()
+                .zip(smile)
+                .map(|(p, d)| pose.project(&(p - d * 0.5)))
+                .collect()
+        })
+        .collect();
+    let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], &options).unwrap();
+    assert!(
+        fit.expressions.iter().all(|e| e[0] == 0.0),
+        "{:?}",
+        fit.expressions
+    );
+    // The face with an expression: its structure is the member's, and no expression is the
+    // neutral face.
+    let (_, reference) = fixture();
+    let face = space
+        .face_with_expression(reference, &identity, &[0.6, 0.0])
+        .unwrap();
+    assert_eq!(
+        face.structure(),
+        &space.structure_with_expression(&identity, &[0.6, 0.0]).unwrap()[..]
+    );
+    assert_eq!(
+        space
+            .face_with_expression(reference, &identity, &[])
+            .unwrap()
+            .surface(),
+        space.face(reference, &identity).unwrap().surface()
+    );
+    // Bad options.
+    let bad = PhotoFitOptions {
+        noise: 1.0,
+        expression_sigma: Some(0.0),
+    };
+    assert!(matches!(
+        space.fit_photos(&views, &[1.0; POINT_COUNT], &bad),
+        Err(FaceError::Option { .. })
+    ));
+    // Names must be one per field.
+    let (mesh, reference) = fixture();
+    let err = space
+        .clone()
+        .with_expression_displacements(reference, mesh, &landmarks(mesh), &["x".to_owned()], &[], "")
+        .unwrap_err();
+    assert!(
+        err.to_string().contains("1 expression names for 0 fields"),
+        "{err}"
+    );
 }

@@ -202,6 +202,81 @@ fn the_embedded_reference_carries_a_face_space() {
 }
 
 #[test]
+fn the_embedded_space_carries_ictfacekits_expressions() {
+    let reference = ReferenceFace::embedded();
+    let modes = reference.space_modes().unwrap();
+    let expressions = &modes.expressions;
+    assert_eq!(expressions.len(), 53);
+    for name in [
+        "jawOpen",
+        "mouthSmile_L",
+        "mouthSmile_R",
+        "browInnerUp_L",
+        "mouthPucker",
+    ] {
+        assert!(expressions.names.iter().any(|n| n == name), "{name}");
+    }
+    assert!(expressions.note.contains("ICT-FaceKit") && expressions.note.contains("MIT"));
+    // jawOpen lowers the chin (the contour's middle point, 4) by centimetres and leaves the
+    // right eye's outer corner (15) nearly where it was.
+    let space = reference.face_space().unwrap();
+    let jaw = expressions.names.iter().position(|n| n == "jawOpen").unwrap();
+    let mut e = vec![0.0; 53];
+    e[jaw] = 1.0;
+    let zero = vec![0.0; 60];
+    let neutral = space.structure(&zero).unwrap();
+    let open = space.structure_with_expression(&zero, &e).unwrap();
+    assert!(
+        open[4].y < neutral[4].y - 10.0,
+        "{} vs {}",
+        open[4].y,
+        neutral[4].y
+    );
+    assert!((open[15] - neutral[15]).norm() < 1.0);
+    // Weights outside [0, 1] or of the wrong count are refused.
+    e[jaw] = 1.5;
+    assert!(space.structure_with_expression(&zero, &e).is_err());
+    assert!(space.structure_with_expression(&zero, &[0.5]).is_err());
+    // The surface follows: the chin's surface point moves down with the structure.
+    let face = space.face_with_expression(reference, &zero, &{
+        let mut e = vec![0.0; 53];
+        e[jaw] = 1.0;
+        e
+    });
+    assert!(face.is_ok());
+    // Version 3 files cannot carry expressions; names must be one per mode, distinct.
+    let json: serde_json::Value = serde_json::from_str(&reference.to_json()).unwrap();
+    let mut old = json.clone();
+    old["version"] = 3.into();
+    let err = ReferenceFace::from_json(&old.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("version 4"), "{err}");
+    let mut short = json.clone();
+    short["space"]["expressions"]["names"]
+        .as_array_mut()
+        .unwrap()
+        .pop();
+    let err = ReferenceFace::from_json(&short.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("space expressions"), "{err}");
+    let mut twice = json;
+    twice["space"]["expressions"]["names"][1] = "browDown_L".into();
+    let err = ReferenceFace::from_json(&twice.to_string())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("repeated"), "{err}");
+    // Without expressions, a space writes and reads as version 3 did.
+    let plain = reference
+        .clone()
+        .with_space(Some(modes.clone().without_expressions()))
+        .unwrap();
+    let back = ReferenceFace::from_json(&plain.to_json()).unwrap();
+    assert!(back.space_modes().unwrap().expressions.is_empty());
+}
+
+#[test]
 fn malformed_references_are_refused() {
     let text = ReferenceFace::embedded().to_json();
     let mut value: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -456,6 +531,190 @@ fn the_command_builds_a_reference_and_refuses_bad_input() {
         assert!(!run.status.success(), "{full:?} succeeded");
         assert!(stderr.contains(expected), "{full:?}: {stderr}");
         assert!(!out.exists(), "{full:?} left an output file");
+    }
+}
+
+/// 68 vertex indices of the synthetic scan laid out like iBUG points: each structure point's
+/// sources sit at its position, the iBUG points no structure point uses halfway between their
+/// neighbours (the inner lips at the outer lips' places), all snapped to the nearest vertex.
+fn synthetic_ibug_vertices(scan: &ReferenceScan) -> Vec<usize> {
+    use splineface::structure::POINTS;
+    let mut at: Vec<Option<Point2<f64>>> = vec![None; 68];
+    for (definition, p) in POINTS.iter().zip(&scan.structure) {
+        if let [single] = definition.ibug_sources {
+            at[*single] = Some(p.xy());
+        } else if definition.ibug_sources.len() == 2 {
+            for &i in definition.ibug_sources {
+                at[i] = Some(p.xy());
+            }
+        }
+    }
+    for (i, before, after) in [1, 3, 5, 7, 9, 11, 13, 15, 18, 20, 23, 25, 32, 34, 49, 53, 55]
+        .map(|i| (i, i - 1, i + 1))
+        .into_iter()
+        .chain([(59, 58, 48)])
+    {
+        at[i] = Some(Point2::from(
+            (at[before].unwrap().coords + at[after].unwrap().coords) / 2.0,
+        ));
+    }
+    for (inner, outer) in (60..68).zip([48, 50, 51, 52, 54, 56, 57, 58]) {
+        at[inner] = at[outer];
+    }
+    let positions = scan.mesh.positions();
+    at.iter()
+        .map(|p| {
+            let p = p.expect("every iBUG point placed");
+            (0..positions.len())
+                .min_by(|&a, &b| {
+                    (positions[a].xy() - p)
+                        .norm()
+                        .total_cmp(&(positions[b].xy() - p).norm())
+                })
+                .unwrap()
+        })
+        .collect()
+}
+
+/// Little-endian float32 displacement fields `[mode][vertex][3]` of `mesh`.
+fn write_fields(path: &Path, mesh: &TriangleMesh, fields: &[fn(&Point3<f64>) -> Vector3<f64>]) {
+    let mut bytes = Vec::new();
+    for f in fields {
+        for p in mesh.positions() {
+            for c in f(p).iter() {
+                bytes.extend_from_slice(&(*c as f32).to_le_bytes());
+            }
+        }
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn the_command_builds_a_face_space_from_displacement_fields() {
+    let scan = synthetic_scan();
+    let mesh_path = scratch("space-scan.obj");
+    write_mesh(&mesh_path, &scan.mesh).unwrap();
+    let indices = scratch("space-scan.txt");
+    let list: Vec<String> = synthetic_ibug_vertices(&scan)
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    std::fs::write(&indices, list.join("\n")).unwrap();
+    let identity = scratch("identity.f32");
+    write_fields(
+        &identity,
+        &scan.mesh,
+        &[
+            |p| Vector3::new(0.0, 0.0, 0.1 * p.x),
+            |p| Vector3::new(0.001 * p.y * p.y, 0.0, 0.0),
+        ],
+    );
+    let expressions = scratch("expressions.f32");
+    write_fields(
+        &expressions,
+        &scan.mesh,
+        &[|p| Vector3::new(0.0, 0.002 * p.x * p.x, 0.0)],
+    );
+    let names = scratch("names.txt");
+    std::fs::write(&names, "# one name a line\nsmile\n").unwrap();
+    let out = scratch("space-out.json");
+    let path = |p: &PathBuf| p.to_str().unwrap().to_owned();
+    let base = vec![
+        "fit-reference".to_owned(),
+        "--mesh".to_owned(),
+        path(&mesh_path),
+        "--landmarks".to_owned(),
+        path(&indices),
+        "--out".to_owned(),
+        path(&out),
+        "--grid".to_owned(),
+        "12".to_owned(),
+    ];
+    let with = |extra: &[&str]| {
+        let mut all = base.clone();
+        all.extend(extra.iter().map(|s| (*s).to_owned()));
+        all
+    };
+    let run = |args: Vec<String>| {
+        let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+        splineface(&refs)
+    };
+    let good = with(&[
+        "--identity-modes",
+        &path(&identity),
+        "--expression-modes",
+        &path(&expressions),
+        "--expression-names",
+        &path(&names),
+        "--modes-note",
+        "synthetic fields",
+    ]);
+    let result = run(good);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let reference = ReferenceFace::from_json(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let modes = reference.space_modes().expect("a face space");
+    assert_eq!(modes.sigma, [1.0, 1.0]);
+    assert_eq!(modes.expressions.names, ["smile"]);
+    assert_eq!(modes.note, "synthetic fields");
+    // The first mode (z = 0.1 x in the scan's frame) tilts the face: the structure's right
+    // eye centre (x = −25) moves back, the left one forward, by about 0.1 × 25 units (the
+    // canonical frame's scale is the scan's up to the eye distance).
+    let z = |p: usize| modes.structure[0][p].z;
+    assert!(
+        z(RIGHT_EYE_CENTRE) < -1.5 && z(LEFT_EYE_CENTRE) > 1.5,
+        "{} {}",
+        z(RIGHT_EYE_CENTRE),
+        z(LEFT_EYE_CENTRE)
+    );
+    std::fs::remove_file(&out).unwrap();
+
+    let truncated = scratch("truncated.f32");
+    std::fs::write(&truncated, &std::fs::read(&identity).unwrap()[..100]).unwrap();
+    let (_, json_landmarks) = synthetic_files();
+    let refused: Vec<(Vec<String>, String)> = vec![
+        (
+            with(&["--identity-modes", &path(&truncated)]),
+            format!("{}: 100 bytes is not a whole number of modes", path(&truncated)),
+        ),
+        (
+            with(&[
+                "--identity-modes",
+                &path(&identity),
+                "--expression-modes",
+                &path(&identity),
+                "--expression-names",
+                &path(&names),
+            ]),
+            format!("{}: 1 names for the 2 expression modes", path(&names)),
+        ),
+        (
+            {
+                let mut args = with(&["--identity-modes", &path(&identity)]);
+                args[4] = path(&json_landmarks);
+                args
+            },
+            "need the landmarks as 68 vertex indices".to_owned(),
+        ),
+        (
+            with(&[
+                "--expression-modes",
+                &path(&expressions),
+                "--expression-names",
+                &path(&names),
+            ]),
+            "--identity-modes".to_owned(),
+        ),
+    ];
+    for (args, expected) in refused {
+        let result = run(args.clone());
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert!(!result.status.success(), "{args:?} succeeded");
+        assert!(stderr.contains(&expected), "{args:?}: {stderr}");
+        assert!(!out.exists(), "{args:?} left an output file");
     }
 }
 

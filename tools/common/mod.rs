@@ -121,15 +121,29 @@ impl Ict {
 
     /// `neutral + Σ wₖ·identityₖ + Σ e·expression(name)`, unified by its structure.
     pub fn subject_with_expression(&self, weights: &[Real], expression: &[(&str, Real)]) -> Result<Subject> {
+        let offsets: Vec<Real> = self
+            .offsets(weights, expression)?
+            .iter()
+            .flat_map(|o| [o.x, o.y, o.z])
+            .collect();
+        self.unified(&offsets)
+    }
+
+    /// `Σₖ wₖ·identityₖ + Σ e·expression(name)` per vertex, the data's frame and centimetres.
+    pub fn offsets(
+        &self,
+        weights: &[Real],
+        expression: &[(&str, Real)],
+    ) -> Result<Vec<nalgebra::Vector3<Real>>> {
         let n = self.neutral.positions().len();
-        let mut offsets = vec![0.0 as Real; 3 * n];
-        for (k, &w) in weights.iter().enumerate().take(self.modes) {
-            for (o, m) in offsets
-                .iter_mut()
-                .zip(&self.identities[k * n * 3..(k + 1) * n * 3])
-            {
-                *o += w * Real::from(*m);
+        let mut offsets = vec![nalgebra::Vector3::zeros(); n];
+        let mut add = |data: &[f32], w: Real| {
+            for (o, m) in offsets.iter_mut().zip(data.chunks_exact(3)) {
+                *o += w * nalgebra::Vector3::new(Real::from(m[0]), Real::from(m[1]), Real::from(m[2]));
             }
+        };
+        for (k, &w) in weights.iter().enumerate().take(self.modes) {
+            add(&self.identities[k * n * 3..(k + 1) * n * 3], w);
         }
         for (name, w) in expression {
             let k = self
@@ -137,27 +151,30 @@ impl Ict {
                 .iter()
                 .position(|e| e == name)
                 .with_context(|| format!("no expression {name}"))?;
-            for (o, m) in offsets
-                .iter_mut()
-                .zip(&self.expressions[k * n * 3..(k + 1) * n * 3])
-            {
-                *o += w * Real::from(*m);
-            }
+            add(&self.expressions[k * n * 3..(k + 1) * n * 3], *w);
         }
-        self.unified(&offsets)
+        Ok(offsets)
     }
 
     /// `neutral + Σₖ wₖ·identityₖ` in the data's own frame and centimetres.
     pub fn positions(&self, weights: &[Real]) -> Vec<Point3<Real>> {
-        let n = self.neutral.positions().len();
-        let mut positions = self.neutral.positions().to_vec();
-        for (k, &w) in weights.iter().enumerate().take(self.modes) {
-            let mode = &self.identities[k * n * 3..(k + 1) * n * 3];
-            for (p, m) in positions.iter_mut().zip(mode.chunks_exact(3)) {
-                *p += w * nalgebra::Vector3::new(Real::from(m[0]), Real::from(m[1]), Real::from(m[2]));
-            }
-        }
-        positions
+        self.positions_with_expression(weights, &[])
+            .expect("no expression names to look up")
+    }
+
+    /// `neutral + Σₖ wₖ·identityₖ + Σ e·expression(name)` in the data's frame and centimetres.
+    pub fn positions_with_expression(
+        &self,
+        weights: &[Real],
+        expression: &[(&str, Real)],
+    ) -> Result<Vec<Point3<Real>>> {
+        Ok(self
+            .neutral
+            .positions()
+            .iter()
+            .zip(self.offsets(weights, expression)?)
+            .map(|(p, o)| p + o)
+            .collect())
     }
 
     fn unified(&self, offsets: &[Real]) -> Result<Subject> {
@@ -185,12 +202,48 @@ impl Ict {
     /// The identity modes `0..count` as a face space on `reference`, which must have been
     /// fitted to the mean face (the embedded one is, and so is its `as_seen_in_photos()`
     /// form, whose structure is the photo structure). Every mode's deviation is 1 (the
-    /// data's identities are `w ~ N(0, 1)`).
+    /// data's identities are `w ~ N(0, 1)`). No expressions ([`Ict::with_expressions`]).
     pub fn face_space(
         &self,
         reference: &splineface::reference::ReferenceFace,
         count: usize,
     ) -> Result<splineface::face::FaceSpace> {
+        let (scan, to_canonical) = self.canonical_scan()?;
+        let fields = self.fields(&self.identities, 0..count.min(self.modes), &to_canonical);
+        let sigma = vec![1.0; fields.len()];
+        Ok(splineface::face::FaceSpace::from_displacements(
+            reference,
+            &scan,
+            &self.landmarks,
+            &fields,
+            &sigma,
+        )?)
+    }
+
+    /// `space` (on `reference`, as [`Ict::face_space`]) with all of ICT's expression
+    /// blendshapes as its expression modes.
+    pub fn with_expressions(
+        &self,
+        space: splineface::face::FaceSpace,
+        reference: &splineface::reference::ReferenceFace,
+    ) -> Result<splineface::face::FaceSpace> {
+        let (scan, to_canonical) = self.canonical_scan()?;
+        let fields = self.fields(&self.expressions, 0..self.expression_names.len(), &to_canonical);
+        let note = "The 53 expression blendshapes of ICT-FaceKit (Copyright (c) 2020 USC Institute for Creative \
+                    Technologies, MIT licence), each a per-vertex displacement of the mean face at full strength \
+                    carried to this grid by tools/face_space --write.";
+        Ok(space.with_expression_displacements(
+            reference,
+            &scan,
+            &self.landmarks,
+            &self.expression_names,
+            &fields,
+            note,
+        )?)
+    }
+
+    /// The mean face in the canonical frame, and the map into it.
+    fn canonical_scan(&self) -> Result<(TriangleMesh, nalgebra::Similarity3<Real>)> {
         let ibug: Vec<Point3<Real>> = self
             .landmarks
             .iter()
@@ -202,10 +255,20 @@ impl Ict {
             .transformed(&nalgebra::Affine3::from_matrix_unchecked(
                 to_canonical.to_homogeneous(),
             ));
+        Ok((scan, to_canonical))
+    }
+
+    /// The displacement fields `modes` of `data` (`[mode][vertex][3]`) in the canonical frame.
+    fn fields(
+        &self,
+        data: &[f32],
+        modes: std::ops::Range<usize>,
+        to_canonical: &nalgebra::Similarity3<Real>,
+    ) -> Vec<Vec<nalgebra::Vector3<Real>>> {
         let n = self.neutral.positions().len();
-        let fields: Vec<Vec<nalgebra::Vector3<Real>>> = (0..count.min(self.modes))
+        modes
             .map(|k| {
-                self.identities[k * n * 3..(k + 1) * n * 3]
+                data[k * n * 3..(k + 1) * n * 3]
                     .chunks_exact(3)
                     .map(|m| {
                         to_canonical
@@ -213,15 +276,7 @@ impl Ict {
                     })
                     .collect()
             })
-            .collect();
-        let sigma = vec![1.0; fields.len()];
-        Ok(splineface::face::FaceSpace::from_displacements(
-            reference,
-            &scan,
-            &self.landmarks,
-            &fields,
-            &sigma,
-        )?)
+            .collect()
     }
 
     /// `neutral + Σₖ wₖ·modeₖ`, unified by its structure; `weights` may be shorter than the

@@ -47,6 +47,7 @@ struct Args {
     methods: Vec<String>,
     calibrate: Option<PathBuf>,
     perspective: bool,
+    expressions: bool,
     out: PathBuf,
     model: PathBuf,
     data: PathBuf,
@@ -64,6 +65,7 @@ fn parse_args() -> Result<Args> {
         methods: Vec::new(),
         calibrate: None,
         perspective: false,
+        expressions: false,
         out: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/target/photo-eval")),
         model: shared.join("models/shape_predictor_68_face_landmarks.dat"),
         data: shared.join("data/lps-head"),
@@ -86,6 +88,7 @@ fn parse_args() -> Result<Args> {
             "--out" => args.out = value()?.into(),
             "--calibrate" => args.calibrate = Some(value()?.into()),
             "--perspective" => args.perspective = true,
+            "--expressions" => args.expressions = true,
             "--model" => args.model = value()?.into(),
             "--data" => args.data = value()?.into(),
             "--ict" => args.ict = value()?.into(),
@@ -790,6 +793,151 @@ impl Method {
     }
 }
 
+/// The expressions the ICT subjects make in `--expressions` (blendshape weights).
+const EXPRESSIONS: [(&str, &[(&str, Real)]); 2] = [
+    ("smile", &[("mouthSmile_L", 0.7), ("mouthSmile_R", 0.7)]),
+    ("jaw-open", &[("jawOpen", 0.35)]),
+];
+
+/// `--expressions`: each ICT subject photographed neutral and with each of [`EXPRESSIONS`]
+/// (same poses, light and skin; the truth is always the neutral identity), every method on
+/// the same sets of each; writes `expressions.md`.
+fn expressions(
+    ict: &Ict,
+    skins: &[&subjects::Skin],
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    mean_face: &MeanFace,
+    methods: &[Method],
+    args: &Args,
+) -> Result<()> {
+    let started = std::time::Instant::now();
+    let variants: Vec<&str> = std::iter::once("neutral")
+        .chain(EXPRESSIONS.iter().map(|e| e.0))
+        .collect();
+    // subjects[k][v]: subject k in variant v.
+    let mut subjects = Vec::new();
+    for k in 0..args.ict_subjects {
+        let skin = skins[k % skins.len()];
+        let mut row = vec![subjects::ict_subject(ict, k, 16, skin)?];
+        for expression in EXPRESSIONS {
+            row.push(subjects::ict_subject_with_expression(
+                ict, k, 16, expression, skin,
+            )?);
+        }
+        subjects.push(row);
+    }
+    let mut pools = Vec::new();
+    for row in &subjects {
+        let mut pool_row = Vec::new();
+        for subject in row {
+            let dir = photos::render_pool(
+                subject,
+                args.pool,
+                45.0,
+                photos::DISTANCES,
+                7,
+                &args.out.join("pools").join(&subject.name),
+            )?;
+            pool_row.push(photos::read_set(&dir)?);
+        }
+        pools.push(pool_row);
+    }
+    eprintln!("pools ready ({:.0} s)", started.elapsed().as_secs_f64());
+    // errors[method][variant][count index]: (ratio to the mean face, error mm) per set.
+    let mut table = String::new();
+    let mut paired = String::new();
+    for method in methods {
+        let chosen_reference = method.reference(reference)?;
+        let mut errors: Vec<Vec<Vec<Real>>> = vec![vec![Vec::new(); args.counts.len()]; variants.len()];
+        let mut baselines: Vec<Real> = Vec::new();
+        for (k, row) in subjects.iter().enumerate() {
+            let baseline = score(&mean_face.mesh, &mean_face.structure, &row[0])?
+                .distance
+                .mean;
+            baselines.push(baseline);
+            for (c, &count) in args.counts.iter().enumerate() {
+                for seed in 0..args.seeds {
+                    let chosen = choose(args.pool, count, seed * 1000 + k as u64);
+                    for (v, subject) in row.iter().enumerate() {
+                        let set = Set {
+                            subject: 0,
+                            label: format!("{} {count} photos, seed {seed}", subject.name),
+                            photos: chosen
+                                .iter()
+                                .map(|&i| {
+                                    (
+                                        format!("{}/{}", subject.name, pools[k][v][i].name),
+                                        &pools[k][v][i],
+                                    )
+                                })
+                                .collect(),
+                        };
+                        let (outcome, _) =
+                            run_set(&set, subject, landmarks, &chosen_reference, &method.options)?;
+                        errors[v][c].push(outcome.score.map_or(Real::NAN, |s| s.distance.mean / baseline));
+                    }
+                }
+            }
+        }
+        for (v, variant) in variants.iter().enumerate() {
+            write!(table, "| {} | {variant} |", method.name)?;
+            for per_count in &errors[v] {
+                write!(table, " {:.2} |", mean_of(per_count.iter().copied()))?;
+            }
+            writeln!(table)?;
+        }
+        write!(paired, "| {} |", method.name)?;
+        for v in 1..variants.len() {
+            for c in 0..args.counts.len() {
+                let ratios = errors[v][c].iter().zip(&errors[0][c]).map(|(e, n)| e / n);
+                write!(paired, " {:.2} |", mean_of(ratios))?;
+            }
+        }
+        writeln!(paired)?;
+        eprintln!("{}: done ({:.0} s)", method.name, started.elapsed().as_secs_f64());
+    }
+    let counts: Vec<String> = args.counts.iter().map(|c| format!("{c} photos")).collect();
+    let page = format!(
+        "# Expressions: the neutral identity from expressive photos\n\n\
+         Made by `{}` (tools/photo_eval --expressions) in {:.0} s. {} ICT-FaceKit identities (as in photos.md: \
+         weights ~ N(0, 1) on the 60 identity modes, real skins), each rendered neutral and with each expression \
+         (ICT blendshapes: {}) in the same poses and light; sets of {:?} photos, {} seeds, the same photos of each \
+         variant. Every reconstruction is scored against the **neutral** identity (inner-face error, as in photos.md), \
+         divided by the unchanged mean face's error on it. ICT-FaceKit: Copyright (c) 2020 USC Institute for Creative \
+         Technologies, MIT licence.\n\n\
+         ## Mean ratio to the mean face\n\n\
+         | method | photos of | {} |\n|---|---|{}\n{table}\n\
+         ## Expressive against neutral photos: mean over sets of error(expressive) / error(neutral)\n\n\
+         | method | {} |\n|---|{}\n{paired}",
+        std::env::args().collect::<Vec<_>>().join(" ").replace(
+            &*std::env::args().next().unwrap_or_default(),
+            "cargo run --release --example photo_eval --"
+        ),
+        started.elapsed().as_secs_f64(),
+        args.ict_subjects,
+        EXPRESSIONS
+            .iter()
+            .map(|(name, weights)| format!("{name} = {weights:?}"))
+            .collect::<Vec<_>>()
+            .join("; "),
+        args.counts,
+        args.seeds,
+        counts.join(" | "),
+        "---|".repeat(counts.len()),
+        variants[1..]
+            .iter()
+            .flat_map(|v| counts.iter().map(move |c| format!("{v}, {c}")))
+            .collect::<Vec<_>>()
+            .join(" | "),
+        "---|".repeat(counts.len() * (variants.len() - 1)),
+    );
+    let path = args.out.join("expressions.md");
+    std::fs::write(&path, page)?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
 /// The methods compared: the default first, then one change from it each.
 fn methods(names: &[String]) -> Result<Vec<Method>> {
     use splineface::pipeline::{Shape, StructureWeight};
@@ -804,6 +952,7 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         options,
         vertex_structure: false,
     };
+    let space = |noise, expressions| Shape::Space { noise, expressions };
     let all = vec![
         method("default", default),
         Method {
@@ -826,9 +975,23 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("all photos", with(&|o| o.drop_disagreeing = false)),
         method("affine", with(&|o| o.deformation = Deformation::Affine)),
         method("deformed", with(&|o| o.shape = Shape::Deformed)),
-        method("space ε2", with(&|o| o.shape = Shape::Space { noise: 2.0 })),
-        method("space ε4", with(&|o| o.shape = Shape::Space { noise: 4.0 })),
-        method("space ε8", with(&|o| o.shape = Shape::Space { noise: 8.0 })),
+        method(
+            "space ε2",
+            with(&|o| o.shape = space(2.0, Some(Shape::DEFAULT_EXPRESSION_SIGMA))),
+        ),
+        method(
+            "space ε8",
+            with(&|o| o.shape = space(8.0, Some(Shape::DEFAULT_EXPRESSION_SIGMA))),
+        ),
+        method("neutral", with(&|o| o.shape = space(Shape::DEFAULT_NOISE, None))),
+        method(
+            "expression τ0.25",
+            with(&|o| o.shape = space(Shape::DEFAULT_NOISE, Some(0.25))),
+        ),
+        method(
+            "expression τ1",
+            with(&|o| o.shape = space(Shape::DEFAULT_NOISE, Some(1.0))),
+        ),
         Method {
             vertex_structure: true,
             ..method(
@@ -944,6 +1107,18 @@ fn main() -> Result<()> {
     if args.perspective {
         perspective(&subjects, &mut landmarks, reference, &args)?;
         return Ok(());
+    }
+    if args.expressions {
+        let ict_skins: Vec<&subjects::Skin> = skins.iter().collect();
+        return expressions(
+            &ict,
+            &ict_skins,
+            &mut landmarks,
+            reference,
+            &mean_face,
+            &methods,
+            &args,
+        );
     }
     if let Some(path) = &args.calibrate {
         // Skins from the collage only: the scan's own skin stays for the evaluation.

@@ -417,14 +417,60 @@ pub fn skins(sources: &[(String, image::RgbImage)], model: &ShapePredictor, ict:
 
 /// An ICT identity (weights ~ N(0, 1) on every mode, seeded) in millimetres, wearing `skin`.
 pub fn ict_subject(ict: &Ict, index: usize, seed: u64, skin: &Skin) -> Result<Subject> {
+    ict_face(ict, format!("ict-{index}"), &ict_weights(ict, index, seed), skin)
+}
+
+/// The identity weights of [`ict_subject`] `index`.
+fn ict_weights(ict: &Ict, index: usize, seed: u64) -> Vec<Real> {
     let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9).wrapping_add(index as u64 + 1));
-    let weights: Vec<Real> = (0..ict.modes).map(|_| rng.gaussian()).collect();
-    ict_face(ict, format!("ict-{index}"), &weights, skin)
+    (0..ict.modes).map(|_| rng.gaussian()).collect()
 }
 
 /// The ICT face with identity weights `weights` in millimetres, wearing `skin`.
 pub fn ict_face(ict: &Ict, name: String, weights: &[Real], skin: &Skin) -> Result<Subject> {
-    let positions: Vec<Point3<Real>> = ict.positions(weights).iter().map(|p| p * 10.0).collect();
+    ict_face_with_expression(ict, name, weights, &[], skin)
+}
+
+/// [`ict_subject`] `index` photographed with an expression (blendshape names and weights):
+/// the camera sees the expression, the truth is the neutral identity.
+pub fn ict_subject_with_expression(
+    ict: &Ict,
+    index: usize,
+    seed: u64,
+    expression: (&str, &[(&str, Real)]),
+    skin: &Skin,
+) -> Result<Subject> {
+    let neutral = ict_subject(ict, index, seed, skin)?;
+    let weights = ict_weights(ict, index, seed);
+    let posed = ict_face_with_expression(
+        ict,
+        format!("ict-{index}-{}", expression.0),
+        &weights,
+        expression.1,
+        skin,
+    )?;
+    Ok(Subject {
+        truth: neutral.truth,
+        structure: neutral.structure,
+        ibug: neutral.ibug,
+        ..posed
+    })
+}
+
+/// The ICT face with identity weights `weights` and an expression in millimetres, wearing
+/// `skin`.
+fn ict_face_with_expression(
+    ict: &Ict,
+    name: String,
+    weights: &[Real],
+    expression: &[(&str, Real)],
+    skin: &Skin,
+) -> Result<Subject> {
+    let positions: Vec<Point3<Real>> = ict
+        .positions_with_expression(weights, expression)?
+        .iter()
+        .map(|p| p * 10.0)
+        .collect();
     let truth = TriangleMesh::new(positions, ict.neutral.triangles().to_vec())?;
     let textured = truth
         .clone()
