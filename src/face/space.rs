@@ -878,6 +878,11 @@ struct JointProblem<'a> {
     identity_products: [[DMatrix<Real>; 3]; 3],
     expression_products: [[DMatrix<Real>; 3]; 3],
     cross_products: [[DMatrix<Real>; 3]; 3],
+    /// The identity and expression modes' structure displacements stacked, `3·40 × K` and
+    /// `3·40 × L` (row `3j + a` is point `j`'s coordinate `a`): a photo's blocks against the
+    /// pose are then one matrix product each.
+    identity_stacked: DMatrix<Real>,
+    expression_stacked: DMatrix<Real>,
 }
 
 impl<'a> JointProblem<'a> {
@@ -900,10 +905,15 @@ impl<'a> JointProblem<'a> {
                 })
             })
         };
+        let stacked = |modes: &[Vec<Vector3<Real>>]| {
+            DMatrix::from_fn(3 * POINT_COUNT, modes.len(), |row, k| modes[k][row / 3][row % 3])
+        };
         JointProblem {
             space,
             expressions,
             point_weights,
+            identity_stacked: stacked(identity),
+            expression_stacked: stacked(expressions),
             ridge: space.ridge(noise),
             expression_ridge: (noise / expression_sigma).powi(2),
             identity_products: products(identity, identity),
@@ -917,8 +927,11 @@ impl<'a> JointProblem<'a> {
         let mut sum = DMatrix::zeros(products[0][0].nrows(), products[0][0].ncols());
         for a in 0..3 {
             for b in 0..3 {
-                if m[(a, b)] != 0.0 {
-                    sum += &products[a][b] * m[(a, b)];
+                let factor = m[(a, b)];
+                if factor != 0.0 {
+                    for (s, p) in sum.as_mut_slice().iter_mut().zip(products[a][b].as_slice()) {
+                        *s += factor * p;
+                    }
                 }
             }
         }
@@ -975,10 +988,9 @@ impl<'a> JointProblem<'a> {
     fn step(&self, weights: &[Real], photos: &[PhotoUnknowns], damping: Real) -> Option<Direction> {
         let k = weights.len();
         let identity = self.space.structure.member(weights);
-        let modes = &self.space.structure.modes;
         let mut summed = nalgebra::Matrix3::zeros();
         let mut rhs = DVector::from_iterator(k, weights.iter().zip(&self.ridge).map(|(w, r)| r * w));
-        // Per photo: its free expression modes, and H⁻¹ [H_lw | g_l].
+        // Per photo: its free expression modes, L⁻¹ and L⁻¹ [H_lw | g_l] (H = L Lᵀ).
         let mut eliminated = Vec::with_capacity(photos.len());
         let mut schur = DMatrix::<Real>::zeros(k, k);
         for photo in photos {
@@ -990,27 +1002,13 @@ impl<'a> JointProblem<'a> {
             summed += m;
             let shape = self.shape(&identity, &photo.expression);
             let residuals = self.residuals(photo, &shape);
-            // The expression gradient decides which modes are free.
-            let mut pulled = Vec::with_capacity(POINT_COUNT); // ωⱼ (P R)ᵀ rⱼ
-            for (res, w) in residuals.iter().zip(self.point_weights) {
-                pulled.push(rows.transpose() * res * *w);
-            }
-            let free: Vec<usize> = (0..self.expressions.len())
-                .filter(|&l| {
-                    let e = photo.expression[l];
-                    let g: Real = self.expressions[l]
-                        .iter()
-                        .zip(&pulled)
-                        .map(|(d, p)| d.dot(p))
-                        .sum::<Real>()
-                        + self.expression_ridge * e;
-                    !((e <= 0.0 && g > 0.0) || (e >= 1.0 && g < 0.0))
-                })
-                .collect();
-            let local = 6 + free.len();
-            let mut h = DMatrix::<Real>::zeros(local, local);
-            let mut hw = DMatrix::<Real>::zeros(local, k);
-            let mut g = DVector::<Real>::zeros(local);
+            // pulled = [ωⱼ (b P R)ᵀ rⱼ]ⱼ and q = [ωⱼ ∂rⱼ/∂(δ, b, d)ᵀ (b P R)]ⱼ, stacked over the
+            // points, give the gradients in the modes (stackedᵀ pulled) and the pose × mode
+            // blocks (q stacked) as matrix products.
+            let mut pulled = DVector::<Real>::zeros(3 * POINT_COUNT);
+            let mut q = DMatrix::<Real>::zeros(6, 3 * POINT_COUNT);
+            let mut h = DMatrix::<Real>::zeros(6, 6);
+            let mut g_pose = nalgebra::Vector6::<Real>::zeros();
             for j in 0..POINT_COUNT {
                 let wj = self.point_weights[j];
                 if wj == 0.0 {
@@ -1018,8 +1016,7 @@ impl<'a> JointProblem<'a> {
                 }
                 let x = shape[j].coords;
                 // ∂r/∂(δ, b, d): −b P R [X]×, P R X, I.
-                let cross = x.cross_matrix();
-                let jr = -(rows * cross);
+                let jr = -(rows * x.cross_matrix());
                 let mut jp = nalgebra::Matrix2x6::<Real>::zeros();
                 jp.fixed_view_mut::<2, 3>(0, 0).copy_from(&jr);
                 jp.set_column(3, &(rows * x / b));
@@ -1027,53 +1024,72 @@ impl<'a> JointProblem<'a> {
                 jp[(1, 5)] = 1.0;
                 let jpt = jp.transpose() * wj;
                 h.fixed_view_mut::<6, 6>(0, 0).add_assign(&(jpt * jp));
-                g.fixed_rows_mut::<6>(0).add_assign(&(jpt * residuals[j]));
-                for (c, mode) in modes.iter().enumerate() {
-                    let v = rows * mode[j];
-                    hw.fixed_view_mut::<6, 1>(0, c).add_assign(&(jpt * v));
-                    rhs[c] += v.dot(&residuals[j]) * wj;
-                }
-                for (f, &l) in free.iter().enumerate() {
-                    let u = rows * self.expressions[l][j];
-                    h.fixed_view_mut::<6, 1>(0, 6 + f).add_assign(&(jpt * u));
-                }
+                g_pose += jpt * residuals[j];
+                pulled
+                    .fixed_rows_mut::<3>(3 * j)
+                    .copy_from(&(rows.transpose() * residuals[j] * wj));
+                q.fixed_view_mut::<6, 3>(0, 3 * j).copy_from(&(jpt * rows));
             }
+            rhs.gemv_tr(1.0, &self.identity_stacked, &pulled, 1.0);
+            // The expression gradient decides which modes are free.
+            let gradient = if self.expressions.is_empty() {
+                DVector::zeros(0)
+            } else {
+                self.expression_stacked.tr_mul(&pulled)
+                    + DVector::from_column_slice(&photo.expression) * self.expression_ridge
+            };
+            let free: Vec<usize> = (0..self.expressions.len())
+                .filter(|&l| {
+                    let (e, g) = (photo.expression[l], gradient[l]);
+                    !((e <= 0.0 && g > 0.0) || (e >= 1.0 && g < 0.0))
+                })
+                .collect();
+            let local = 6 + free.len();
+            let h = h.resize(local, local, 0.0);
+            let mut h = h;
+            let mut hw = DMatrix::<Real>::zeros(local, k);
+            hw.rows_mut(0, 6).gemm(1.0, &q, &self.identity_stacked, 0.0);
+            let mut g = DVector::<Real>::zeros(local);
+            g.fixed_rows_mut::<6>(0).copy_from(&g_pose);
             if !free.is_empty() {
+                let free_columns = self.expression_stacked.select_columns(&free);
+                let pose_expression = &q * &free_columns;
+                h.view_mut((0, 6), (6, free.len())).copy_from(&pose_expression);
+                h.view_mut((6, 0), (free.len(), 6))
+                    .copy_from(&pose_expression.transpose());
+                // Σₐᵦ Mₐᵦ Fₐᵦ whole (nine contiguous sums), then the free modes' entries.
                 let ee = Self::contract(&self.expression_products, &m);
                 let ew = Self::contract(&self.cross_products, &m);
-                for (f, &l) in free.iter().enumerate() {
-                    for (f2, &l2) in free.iter().enumerate() {
+                for (f2, &l2) in free.iter().enumerate() {
+                    for (f, &l) in free.iter().enumerate() {
                         h[(6 + f, 6 + f2)] = ee[(l, l2)];
                     }
-                    h[(6 + f, 6 + f)] += self.expression_ridge;
-                    for c in 0..k {
-                        hw[(6 + f, c)] = ew[(l, c)];
-                    }
-                    g[6 + f] = self.expressions[l]
-                        .iter()
-                        .zip(&pulled)
-                        .map(|(d, p)| d.dot(p))
-                        .sum::<Real>()
-                        + self.expression_ridge * photo.expression[l];
                 }
-                for a in 0..6 {
-                    for f in 0..free.len() {
-                        h[(6 + f, a)] = h[(a, 6 + f)];
+                for col in 0..k {
+                    for (f, &l) in free.iter().enumerate() {
+                        hw[(6 + f, col)] = ew[(l, col)];
                     }
+                }
+                for (f, &l) in free.iter().enumerate() {
+                    h[(6 + f, 6 + f)] += self.expression_ridge;
+                    g[6 + f] = gradient[l];
                 }
             }
             for d in 0..local {
                 h[(d, d)] *= 1.0 + damping;
             }
-            let cholesky = nalgebra::linalg::Cholesky::new(h)?;
+            // With H = L Lᵀ and Y = L⁻¹ [H_lw | g]: the Schur complement loses Y_wᵀ Y_w and the
+            // right-hand side Y_wᵀ Y_g; the photo's step is then −L⁻ᵀ (Y_g + Y_w Δw). L⁻¹ is
+            // formed explicitly (small) so that the products run in the blocked kernel.
+            let inverse = lower_inverse(&nalgebra::linalg::Cholesky::new(h)?.unpack());
             let mut stacked = DMatrix::<Real>::zeros(local, k + 1);
             stacked.columns_mut(0, k).copy_from(&hw);
             stacked.set_column(k, &g);
-            let solved = cholesky.solve(&stacked);
-            let product = hw.transpose() * &solved;
+            let y = &inverse * &stacked;
+            let product = y.columns(0, k).transpose() * &y;
             schur -= product.columns(0, k);
             rhs -= product.column(k);
-            eliminated.push((free, solved));
+            eliminated.push((free, inverse, y));
         }
         let mut whole = Self::contract(&self.identity_products, &summed);
         for c in 0..k {
@@ -1083,9 +1099,9 @@ impl<'a> JointProblem<'a> {
         let step_w = -nalgebra::linalg::Cholesky::new(schur)?.solve(&rhs);
         let photos = eliminated
             .into_iter()
-            .map(|(free, solved)| {
-                let step = -(solved.column(k) + solved.columns(0, k) * &step_w);
-                (free, step)
+            .map(|(free, inverse, y)| {
+                let v = y.column(k) + y.columns(0, k) * &step_w;
+                (free, -(inverse.transpose() * v))
             })
             .collect();
         Some(Direction {
@@ -1123,6 +1139,24 @@ impl<'a> JointProblem<'a> {
             .collect();
         (next_weights, next_photos)
     }
+}
+
+/// The inverse of a lower-triangular matrix with a positive diagonal (forward substitution on
+/// the identity, a column at a time).
+fn lower_inverse(lower: &DMatrix<Real>) -> DMatrix<Real> {
+    let n = lower.nrows();
+    let mut inverse = DMatrix::<Real>::zeros(n, n);
+    for col in 0..n {
+        inverse[(col, col)] = 1.0 / lower[(col, col)];
+        for row in col + 1..n {
+            let mut sum = 0.0;
+            for k in col..row {
+                sum += lower[(row, k)] * inverse[(k, col)];
+            }
+            inverse[(row, col)] = -sum / lower[(row, row)];
+        }
+    }
+    inverse
 }
 
 /// A Gauss–Newton step of [`JointProblem`]: the identity weights' change, and per photo its
