@@ -85,6 +85,10 @@ enum Command {
         /// Where the modes came from (licence, origin), stored with them.
         #[arg(long, default_value = "")]
         modes_note: String,
+        /// Learn a face space from the scans themselves (three or more): the principal
+        /// components of their own fitted grids, each scan a sample of the faces it stands for.
+        #[arg(long, conflicts_with = "identity_modes")]
+        space_from_scans: bool,
     },
     /// Reconstruct a face from photos and/or their landmark files.
     ///
@@ -342,6 +346,7 @@ fn run(cli: Cli) -> Result<()> {
             expression_modes,
             expression_names,
             modes_note,
+            space_from_scans,
         } => {
             let options = ReferenceOptions {
                 grid,
@@ -354,7 +359,15 @@ fn run(cli: Cli) -> Result<()> {
                 expressions: expression_modes.zip(expression_names),
                 note: modes_note,
             });
-            fit_reference(&meshes, &landmarks, &out, &options, &note, modes.as_ref())
+            fit_reference(
+                &meshes,
+                &landmarks,
+                &out,
+                &options,
+                &note,
+                modes.as_ref(),
+                space_from_scans,
+            )
         }
         Command::Reconstruct {
             photos,
@@ -855,6 +868,7 @@ fn fit_reference(
     options: &ReferenceOptions,
     note: &str,
     modes: Option<&ModeFiles>,
+    space_from_scans: bool,
 ) -> Result<()> {
     if meshes.len() != landmarks.len() {
         bail!(
@@ -890,7 +904,11 @@ fn fit_reference(
         });
     }
     let start = std::time::Instant::now();
-    let mut reference = build_reference(&scans, options, note)?;
+    let mut reference = if space_from_scans {
+        splineface::reference::build_reference_with_space(&scans, options, note)?
+    } else {
+        build_reference(&scans, options, note)?
+    };
     if let Some(modes) = modes {
         reference = with_modes(reference, &scans[0].mesh, &landmarks[0], modes)?;
     }

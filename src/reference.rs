@@ -27,9 +27,18 @@
 //! ```json
 //! {
 //!   "format": "splineface/reference",
-//!   "version": 1,
+//!   "version": 4,
 //!   "surface": { …a splineface/bspline-surface… },
 //!   "structure": [[x, y, z], …40],
+//!   "photo_structure": { "points": [[x, y, z], …40], "note": "…" },   // optional, v2+
+//!   "space": {                                                       // optional, v3+
+//!     "modes": K, "sigma": [σ, …K], "structure": [[[dx, dy, dz], …40], …K],
+//!     "grid_encoding": "f32le-base64", "grid": "…K × rows·cols × 3 floats…", "note": "…",
+//!     "expressions": {                                               // optional, v4+
+//!       "names": ["jawOpen", …L], "structure": [[[dx, dy, dz], …40], …L],
+//!       "grid_encoding": "f32le-base64", "grid": "…", "note": "…"
+//!     }
+//!   },
 //!   "edges": [[i, j], …],
 //!   "frame": { "x": [x0, x1], "y": [y0, y1] },
 //!   "clip": [[u, v], …],
@@ -558,6 +567,9 @@ pub enum ReferenceError {
     /// The fit failed.
     #[error("fitting the control grid: {0}")]
     Fit(#[from] BSplineError),
+    /// The face space learnt from the scans is not usable.
+    #[error("the face space: {0}")]
+    Space(String),
 }
 
 /// One scan handed to [`build_reference`].
@@ -650,8 +662,94 @@ pub fn build_reference(
     }
     options.validate()?;
 
+    let prepared = prepare(scans, options)?;
+    let mean_heights: Vec<Real> = (0..prepared.xy.len())
+        .map(|i| prepared.heights.iter().map(|h| h[i]).sum::<Real>() / scans.len() as Real)
+        .collect();
+    let points = prepared.points(&mean_heights);
+    let params = &prepared.params;
+
+    // 4. The fit.
+    let fitter = prepared.fitter(options)?;
+    let fitted = fitter.fit(params, &points)?;
+    let surface = fitted.surface;
+    let mut distances: Vec<Real> = surface
+        .eval_many(params)?
+        .iter()
+        .zip(&points)
+        .map(|(e, p)| (e - p).norm())
+        .collect();
+    distances.sort_unstable_by(Real::total_cmp);
+    let percentile = |q: Real| distances[((distances.len() - 1) as Real * q).round() as usize];
+    let fit = ReferenceFit {
+        options: *options,
+        samples: points.len(),
+        rms: fitted.report.rms,
+        max: fitted.report.max,
+        max_at: points[fitted.report.max_index],
+        median: percentile(0.5),
+        p95: percentile(0.95),
+    };
+    let mean = prepared.mean;
+    let frontal: Vec<Point2<Real>> = mean.iter().map(|p| p.xy()).collect();
+    let edges = delaunay_edges(&frontal).map_err(|source| ReferenceError::Structure { scan: 0, source })?;
+    Ok(ReferenceFace {
+        surface,
+        structure: mean,
+        photo_structure: None,
+        space: None,
+        edges,
+        frame: prepared.frame,
+        clip: prepared.clip,
+        fit,
+        provenance: Provenance {
+            program: format!("splineface {} fit-reference", env!("CARGO_PKG_VERSION")),
+            sources: scans.iter().map(|s| s.source.clone()).collect(),
+            note: note.to_owned(),
+        },
+    })
+}
+
+/// The scans unified and sampled over the face region: what [`build_reference`] fits.
+struct Prepared {
+    /// The mean structure and each scan's, canonical frame.
+    mean: Vec<Point3<Real>>,
+    structures: Vec<Vec<Point3<Real>>>,
+    frame: FrontalFrame,
+    clip: Vec<Point2<Real>>,
+    /// The samples where every scan has surface, inside the fitted region: their parameters,
+    /// their frontal positions and each scan's height there.
+    params: Vec<[Real; 2]>,
+    xy: Vec<Point2<Real>>,
+    heights: Vec<Vec<Real>>,
+}
+
+impl Prepared {
+    fn points(&self, heights: &[Real]) -> Vec<Point3<Real>> {
+        self.xy
+            .iter()
+            .zip(heights)
+            .map(|(p, z)| Point3::new(p.x, p.y, *z))
+            .collect()
+    }
+
+    fn fitter(&self, options: &ReferenceOptions) -> Result<SurfaceFit<'_>, ReferenceError> {
+        let needed = options.grid * options.grid;
+        if self.xy.len() < needed {
+            return Err(ReferenceError::TooFewSamples {
+                samples: self.xy.len(),
+            });
+        }
+        let knots = KnotVector::clamped_uniform(3, options.grid, 0.0, 1.0)?;
+        Ok(SurfaceFit::new(knots.clone(), knots).smoothness(options.smoothness))
+    }
+}
+
+/// Steps 1 to 3 of [`build_reference`].
+fn prepare(scans: &[ReferenceScan], options: &ReferenceOptions) -> Result<Prepared, ReferenceError> {
     // 1. Unify every scan; the reference structure is the mean.
     let mut meshes = Vec::with_capacity(scans.len());
+    let mut structures = Vec::with_capacity(scans.len());
     let mut mean = vec![Point3::origin(); POINT_COUNT];
     for (k, scan) in scans.iter().enumerate() {
         let (similarity, canonical) =
@@ -660,6 +758,7 @@ pub fn build_reference(
         for (m, p) in mean.iter_mut().zip(&canonical) {
             m.coords += p.coords / scans.len() as Real;
         }
+        structures.push(canonical);
     }
 
     // 2. The face region and the frontal box.
@@ -676,7 +775,7 @@ pub fn build_reference(
     };
     let clip: Vec<Point2<Real>> = region.iter().map(|p| frame.parameters(p.x, p.y)).collect();
 
-    // 3. Mean front-most heights over the box.
+    // 3. Front-most heights over the box, where every scan has surface.
     let spacing = options.sample_spacing;
     let raster = frame.raster(spacing);
     if raster.width as Real * raster.height as Real > MAX_SAMPLES as Real {
@@ -686,19 +785,14 @@ pub fn build_reference(
             expected: "coarse enough for at most 20 million samples over the face box",
         });
     }
-    let mut sums = vec![0.0; raster.width * raster.height];
-    for mesh in &meshes {
-        for (sum, h) in sums.iter_mut().zip(front_heights(mesh, &raster)) {
-            // NaN (no surface in one scan) poisons the sample, as intended.
-            *sum += h;
-        }
-    }
+    let all: Vec<Vec<Real>> = meshes.iter().map(|mesh| front_heights(mesh, &raster)).collect();
     let mut params = Vec::new();
-    let mut points = Vec::new();
+    let mut xy = Vec::new();
+    let mut kept = Vec::new();
     for j in 0..raster.height {
         for i in 0..raster.width {
-            let z = sums[j * raster.width + i] / meshes.len() as Real;
-            if z.is_nan() {
+            let index = j * raster.width + i;
+            if all.iter().any(|h| h[index].is_nan()) {
                 continue;
             }
             let p = raster.position(i, j);
@@ -707,56 +801,110 @@ pub fn build_reference(
             }
             let uv = frame.parameters(p.x, p.y);
             params.push([uv.x.clamp(0.0, 1.0), uv.y.clamp(0.0, 1.0)]);
-            points.push(Point3::new(p.x, p.y, z));
+            xy.push(Point2::new(p.x, p.y));
+            kept.push(index);
         }
     }
-    let needed = options.grid * options.grid;
-    if points.len() < needed {
-        return Err(ReferenceError::TooFewSamples {
-            samples: points.len(),
-        });
-    }
-
-    // 4. The fit.
-    let knots = KnotVector::clamped_uniform(3, options.grid, 0.0, 1.0)?;
-    let fitted = SurfaceFit::new(knots.clone(), knots)
-        .smoothness(options.smoothness)
-        .fit(&params, &points)?;
-    let surface = fitted.surface;
-    let mut distances: Vec<Real> = surface
-        .eval_many(&params)?
+    let heights = all
         .iter()
-        .zip(&points)
-        .map(|(e, p)| (e - p).norm())
+        .map(|h| kept.iter().map(|&index| h[index]).collect())
         .collect();
-    distances.sort_unstable_by(Real::total_cmp);
-    let percentile = |q: Real| distances[((distances.len() - 1) as Real * q).round() as usize];
-    let fit = ReferenceFit {
-        options: *options,
-        samples: points.len(),
-        rms: fitted.report.rms,
-        max: fitted.report.max,
-        max_at: points[fitted.report.max_index],
-        median: percentile(0.5),
-        p95: percentile(0.95),
-    };
-    let frontal: Vec<Point2<Real>> = mean.iter().map(|p| p.xy()).collect();
-    let edges = delaunay_edges(&frontal).map_err(|source| ReferenceError::Structure { scan: 0, source })?;
-    Ok(ReferenceFace {
-        surface,
-        structure: mean,
-        photo_structure: None,
-        space: None,
-        edges,
+    Ok(Prepared {
+        mean,
+        structures,
         frame,
         clip,
-        fit,
-        provenance: Provenance {
-            program: format!("splineface {} fit-reference", env!("CARGO_PKG_VERSION")),
-            sources: scans.iter().map(|s| s.source.clone()).collect(),
-            note: note.to_owned(),
-        },
+        params,
+        xy,
+        heights,
     })
+}
+
+/// A reference built from several scans ([`build_reference`]) with a face space learnt from
+/// them: the principal components of their own fitted grids.
+///
+/// Every scan is fitted on the reference's knots, over the same samples (the scans are in
+/// correspondence through the frontal parametrisation of their unified frames: a sample is the
+/// same `(x, y)` on every face); by linearity the mean of those grids is the reference's grid.
+/// The scans' deviations from it, `Dₛ = Gₛ − Ḡ`, are decomposed as `D = U S Vᵀ`; mode `k` is
+/// `Vₖ sₖ / √(n − 1)`, the displacement of one standard deviation along it (so its prior
+/// deviation is 1), and moves the 40 points by the same combination of the scans' structures,
+/// `Σₛ Uₛₖ (Sₛ − S̄) / √(n − 1)`. At most `n − 1` modes, those whose singular value is not
+/// negligible (above `10⁻⁹` of the largest). The grid modes move heights only (a sample's
+/// `(x, y)` is shared), as the frontal parametrisation implies.
+///
+/// # Errors
+/// As [`build_reference`], and [`ReferenceError::Option`] for fewer than 3 scans (two give one
+/// direction, not a space).
+pub fn build_reference_with_space(
+    scans: &[ReferenceScan],
+    options: &ReferenceOptions,
+    note: &str,
+) -> Result<ReferenceFace, ReferenceError> {
+    if scans.len() < 3 {
+        return Err(ReferenceError::Option {
+            name: "scans",
+            value: scans.len().to_string(),
+            expected: "at least 3 for a face space learnt from scans",
+        });
+    }
+    let reference = build_reference(scans, options, note)?;
+    let prepared = prepare(scans, options)?;
+    let fitter = prepared.fitter(options)?;
+    let n = scans.len();
+    let mut grids = Vec::with_capacity(n);
+    for heights in &prepared.heights {
+        let fitted = fitter.fit(&prepared.params, &prepared.points(heights))?;
+        grids.push(fitted.surface.control_points().to_vec());
+    }
+    let controls = grids[0].len();
+    let mean_grid: Vec<Point3<Real>> = (0..controls)
+        .map(|c| Point3::from(grids.iter().map(|g| g[c].coords).sum::<Vector3<Real>>() / n as Real))
+        .collect();
+    let deviations = nalgebra::DMatrix::from_fn(n, 3 * controls, |s, i| {
+        grids[s][i / 3][i % 3] - mean_grid[i / 3][i % 3]
+    });
+    let svd = deviations.clone().svd(true, false);
+    let u = svd.u.expect("asked for U");
+    let largest = svd.singular_values.max();
+    let scale = 1.0 / ((n - 1) as Real).sqrt();
+    let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
+    order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+    let mut grid_modes = Vec::new();
+    let mut structure_modes = Vec::new();
+    for k in order.into_iter().take(n - 1) {
+        if !(svd.singular_values[k] > 1e-9 * largest) {
+            continue;
+        }
+        let coefficients: Vec<Real> = (0..n).map(|s| u[(s, k)] * scale).collect();
+        let mut grid = vec![Vector3::zeros(); controls];
+        let mut structure = vec![Vector3::zeros(); POINT_COUNT];
+        for (s, c) in coefficients.iter().enumerate() {
+            for (g, (p, m)) in grid.iter_mut().zip(grids[s].iter().zip(&mean_grid)) {
+                *g += (p - m) * *c;
+            }
+            for (d, (p, m)) in structure
+                .iter_mut()
+                .zip(prepared.structures[s].iter().zip(&prepared.mean))
+            {
+                *d += (p - m) * *c;
+            }
+        }
+        grid_modes.push(grid);
+        structure_modes.push(structure);
+    }
+    let space = SpaceModes {
+        sigma: vec![1.0; grid_modes.len()],
+        grid: grid_modes,
+        structure: structure_modes,
+        note: format!(
+            "The principal components of the {n} scans' own grids (fit-reference --space-from-scans); {note}"
+        ),
+        expressions: ExpressionModes::default(),
+    };
+    reference
+        .with_space(Some(space))
+        .map_err(|message| ReferenceError::Space(message))
 }
 
 /// The project's default reference, fitted to the ICT-FaceKit mean face (see

@@ -9,6 +9,7 @@ use splineface::landmarks::read_vertex_indices;
 use splineface::mesh::{TriangleMesh, read_mesh, write_mesh};
 use splineface::reference::{
     ReferenceError, ReferenceFace, ReferenceOptions, ReferenceScan, ReferenceSource, build_reference,
+    build_reference_with_space,
 };
 use splineface::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE, delaunay_edges, from_ibug68};
 
@@ -522,6 +523,10 @@ fn the_command_builds_a_reference_and_refuses_bad_input() {
             vec!["--mesh", mesh, "--landmarks", landmarks, "--smoothness", "nan"],
             "smoothness",
         ),
+        (
+            vec!["--mesh", mesh, "--landmarks", landmarks, "--space-from-scans"],
+            "at least 3 for a face space learnt from scans",
+        ),
     ];
     for (args, expected) in refused {
         let mut full = vec!["fit-reference", "--out", out_str];
@@ -716,6 +721,101 @@ fn the_command_builds_a_face_space_from_displacement_fields() {
         assert!(stderr.contains(&expected), "{args:?}: {stderr}");
         assert!(!out.exists(), "{args:?} left an output file");
     }
+}
+
+/// The synthetic scan with its heights changed by `a` times a cheek-width field and `b` times a
+/// chin-depth field (its structure lifted onto the new heights).
+fn varied_scan(a: f64, b: f64) -> ReferenceScan {
+    let change = |p: &Point3<f64>| a * 4.0 * (p.x / 40.0).powi(2) + b * 3.0 * ((p.y + 40.0) / 40.0).powi(2);
+    let base = synthetic_scan();
+    let positions = base
+        .mesh
+        .positions()
+        .iter()
+        .map(|p| Point3::new(p.x, p.y, p.z + change(p)))
+        .collect();
+    ReferenceScan {
+        mesh: TriangleMesh::new(positions, base.mesh.triangles().to_vec()).unwrap(),
+        structure: base
+            .structure
+            .iter()
+            .map(|p| Point3::new(p.x, p.y, p.z + change(p)))
+            .collect(),
+        source: source("varied"),
+    }
+}
+
+#[test]
+fn a_face_space_learnt_from_scans_holds_each_scan() {
+    use splineface::face::DenseFitOptions;
+    use splineface::mesh::ClosestPoints;
+    let scans: Vec<ReferenceScan> = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, -1.0)]
+        .iter()
+        .map(|&(a, b)| varied_scan(a, b))
+        .collect();
+    let options = ReferenceOptions {
+        grid: 12,
+        ..ReferenceOptions::default()
+    };
+    let reference = build_reference_with_space(&scans, &options, "test").unwrap();
+    let modes = reference.space_modes().unwrap();
+    assert!(
+        (1..=3).contains(&modes.sigma.len()),
+        "{} modes",
+        modes.sigma.len()
+    );
+    assert!(modes.note.contains("principal components of the 4 scans"));
+    // Without the space it is the reference build_reference makes.
+    let plain = build_reference(&scans, &options, "test").unwrap();
+    assert_eq!(plain.surface(), reference.surface());
+    // Each scan is a member: fitted densely from its own structure, the member lies on the scan
+    // (in its canonical frame) to within the grid's own fitting error.
+    let space = reference.face_space().unwrap();
+    for scan in &scans {
+        let (to_canonical, canonical) = splineface::structure::unify(&scan.structure).unwrap();
+        let mesh = scan.mesh.transformed(&nalgebra::convert(to_canonical));
+        let start = space.fit_structure(&canonical, &[1.0; 40], 1e-3).unwrap();
+        let fit = space
+            .fit_surface(
+                &reference,
+                &mesh,
+                &start,
+                &DenseFitOptions {
+                    noise: 1e-3,
+                    ..DenseFitOptions::default()
+                },
+            )
+            .unwrap();
+        let member = space.surfaces().surface(&fit.weights).unwrap();
+        let closest = ClosestPoints::new(&mesh);
+        let mut worst: f64 = 0.0;
+        for i in 2..=18 {
+            for j in 2..=18 {
+                let (u, v) = (i as f64 / 20.0, j as f64 / 20.0);
+                if reference.in_face_region(u, v) {
+                    let p = fit.placement * member.eval(u, v).unwrap();
+                    worst = worst.max(closest.closest(&p).distance);
+                }
+            }
+        }
+        assert!(worst < 0.5, "a scan lies {worst} units from its member");
+    }
+    // The mean face alone is not a member of the varied scans' space: the first varied scan is
+    // far from it.
+    let (to_canonical, _) = splineface::structure::unify(&scans[1].structure).unwrap();
+    let mesh = scans[1].mesh.transformed(&nalgebra::convert(to_canonical));
+    let closest = ClosestPoints::new(&mesh);
+    let far = (2..=18)
+        .flat_map(|i| (2..=18).map(move |j| (i as f64 / 20.0, j as f64 / 20.0)))
+        .filter(|&(u, v)| reference.in_face_region(u, v))
+        .map(|(u, v)| closest.closest(&reference.surface().eval(u, v).unwrap()).distance)
+        .fold(0.0, f64::max);
+    assert!(far > 1.0, "{far}");
+    // Two scans are not enough.
+    assert!(matches!(
+        build_reference_with_space(&scans[..2], &options, ""),
+        Err(ReferenceError::Option { name: "scans", .. })
+    ));
 }
 
 #[test]
