@@ -2,9 +2,10 @@
 //! ±60°, pitch ±25°, roll ±15°, landmark noise 1% of the eye distance), the whole estimation
 //! (points-only frontal structure, then depth). Target (issue 4): ≤ 20 ms. `paper (Fixed)` is
 //! the paper's method (frontal `x, y` kept) as the baseline in the same run; `frontal only` is
-//! the Procrustes part alone. `face space (60 modes)` is the default shape's joint fit of the
-//! embedded reference's face space to the same photos (`FaceSpace::fit_photos`; target, issue
-//! 17: ≤ 30 ms), beside the depth stage it follows.
+//! the Procrustes part alone. `face space (60 identity, 53 expression modes)` is the default
+//! shape's joint fit of the embedded reference's face space to the same photos, every photo with
+//! its own expression (`FaceSpace::fit_photos`; target, issue 17: ≤ 30 ms), beside the depth
+//! stage it follows; `face space, neutral` the same fit without expressions.
 //!
 //! Run: `cargo bench --bench depth`.
 
@@ -85,20 +86,21 @@ fn bench(c: &mut Criterion) {
     let space = reference.face_space().expect("the default carries a face space");
     let views: Vec<Vec<Point2<f64>>> = photos.iter().map(PhotoPoints::y_up).collect();
     let weights = splineface::structure::contour_weighted(DepthOptions::default().contour_weight);
-    group.bench_function("face space (60 modes)", |b| {
-        b.iter(|| {
-            space
-                .fit_photos(
-                    black_box(&views),
-                    &weights,
-                    &splineface::face::PhotoFitOptions {
-                        noise: splineface::pipeline::Shape::DEFAULT_NOISE,
-                        expression_sigma: Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA),
-                    },
-                )
-                .unwrap()
-        })
-    });
+    for (name, expression_sigma) in [
+        (
+            "face space (60 identity, 53 expression modes)",
+            Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA),
+        ),
+        ("face space, neutral (60 identity modes)", None),
+    ] {
+        let options = splineface::face::PhotoFitOptions {
+            noise: splineface::pipeline::Shape::DEFAULT_NOISE,
+            expression_sigma,
+        };
+        group.bench_function(name, |b| {
+            b.iter(|| space.fit_photos(black_box(&views), &weights, &options).unwrap())
+        });
+    }
     group.finish();
 }
 

@@ -873,7 +873,7 @@ pub fn build_reference_with_space(
     let mut grid_modes = Vec::new();
     let mut structure_modes = Vec::new();
     for k in order.into_iter().take(n - 1) {
-        if !(svd.singular_values[k] > 1e-9 * largest) {
+        if svd.singular_values[k].is_nan() || svd.singular_values[k] <= 1e-9 * largest {
             continue;
         }
         let coefficients: Vec<Real> = (0..n).map(|s| u[(s, k)] * scale).collect();
@@ -902,9 +902,7 @@ pub fn build_reference_with_space(
         ),
         expressions: ExpressionModes::default(),
     };
-    reference
-        .with_space(Some(space))
-        .map_err(|message| ReferenceError::Space(message))
+    reference.with_space(Some(space)).map_err(ReferenceError::Space)
 }
 
 /// The project's default reference, fitted to the ICT-FaceKit mean face (see

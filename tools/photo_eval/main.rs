@@ -888,9 +888,9 @@ fn expressions(
             writeln!(table)?;
         }
         write!(paired, "| {} |", method.name)?;
-        for v in 1..variants.len() {
-            for c in 0..args.counts.len() {
-                let ratios = errors[v][c].iter().zip(&errors[0][c]).map(|(e, n)| e / n);
+        for expressive in &errors[1..] {
+            for (of_count, neutral) in expressive.iter().zip(&errors[0]) {
+                let ratios = of_count.iter().zip(neutral).map(|(e, n)| e / n);
                 write!(paired, " {:.2} |", mean_of(ratios))?;
             }
         }
