@@ -488,7 +488,10 @@ pub fn reconstruct(
                             reason: "no expressions were fitted (the reference's space has none, or they were turned off)".to_owned(),
                         });
                     }
-                    shape.push_str(&format!(", shown with the expression of photo {photo}"));
+                    shape.push_str(&format!(
+                        ", shown with the expression of {}",
+                        inputs[photo].points.name
+                    ));
                     space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?
                 }
             };

@@ -151,7 +151,7 @@ const CORPUS: &[(&str, Kind, &str)] = &[
     (
         "future-reference.json",
         Reference,
-        "format version 99 is not supported (this build reads versions 1 to 3)",
+        "format version 99 is not supported (this build reads versions 1 to 4)",
     ),
     (
         "short-space-reference.json",
@@ -560,6 +560,30 @@ fn bad_paths_and_flags_fail_cleanly() {
                 "NaN",
             ]),
             vec!["--spacing NaN must be between 0.1 and 20"],
+        ),
+        (
+            args(&[
+                "reconstruct",
+                "--landmarks",
+                &good,
+                "--out",
+                &at("out"),
+                "--expression-sigma",
+                "0",
+            ]),
+            vec!["--expression-sigma 0 must be positive"],
+        ),
+        (
+            args(&[
+                "reconstruct",
+                "--landmarks",
+                &good,
+                "--out",
+                &at("out"),
+                "--expression-of",
+                "no-such-photo",
+            ]),
+            vec!["--expression-of no-such-photo: no usable photo has that name (the photos are "],
         ),
         (
             args(&[

@@ -166,6 +166,48 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["frontal_method"], "Procrustes");
+    // Every photo's expression is fitted and listed; the demo subject smiles, so some photo's
+    // weights are not all zero.
+    let neutral: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("structure.json")).unwrap()).unwrap();
+    let expressions = neutral["expressions"].as_array().unwrap();
+    assert_eq!(expressions.len(), 6, "{expressions:?}");
+    assert!(
+        expressions
+            .iter()
+            .any(|e| !e["weights"].as_object().unwrap().is_empty()),
+        "{expressions:?}"
+    );
+    // The face with one photo's expression: the neutral face moved by it (the same identity).
+    let posed = dir.join("posed");
+    let run = splineface(&[
+        "reconstruct",
+        "--landmarks",
+        &s(&photos),
+        "--out",
+        &s(&posed),
+        "--units",
+        "canonical",
+        "--expression-of",
+        "photo01",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(posed.join("report.json")).unwrap()).unwrap();
+    assert!(
+        report["surface"]["shape"]
+            .as_str()
+            .unwrap()
+            .contains("with the expression of photo01"),
+        "{report}"
+    );
+    let structure: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(posed.join("structure.json")).unwrap()).unwrap();
+    let smiling = expressions.iter().find(|e| e["name"] == "photo01").unwrap();
+    let moved =
+        std::fs::read(posed.join("face.obj")).unwrap() != std::fs::read(out.join("face.obj")).unwrap();
+    assert_eq!(moved, !smiling["weights"].as_object().unwrap().is_empty());
+    assert_eq!(structure["space_weights"], neutral["space_weights"]);
 
     // A corrupt photo is skipped and reported; the rest still make a face.
     let mixed = dir.join("mixed");
