@@ -867,7 +867,7 @@ struct PhotoUnknowns {
 /// A photo's normal-equation blocks between modes only involve `Rᵀ Pᵀ P R = I − n nᵀ` (`n` its
 /// view direction, the rotation's third row), so they are `Σₐᵦ (δₐᵦ − nₐ nᵦ) Fₐᵦ` with
 /// `Fₐᵦ = Σⱼ ωⱼ Dⱼ[a]ᵀ D'ⱼ[b]` over the modes' displacements, computed once per fit: a photo's
-/// blocks then cost 9 matrix sums whatever the number of points.
+/// blocks then cost nine products per entry whatever the number of points ([`Products`]).
 struct JointProblem<'a> {
     space: &'a FaceSpace,
     expressions: &'a [Vec<Vector3<Real>>],
@@ -877,9 +877,9 @@ struct JointProblem<'a> {
     /// `ε² / τ²`.
     expression_ridge: Real,
     /// `Fₐᵦ` identity × identity, expression × expression and expression × identity.
-    identity_products: [[DMatrix<Real>; 3]; 3],
-    expression_products: [[DMatrix<Real>; 3]; 3],
-    cross_products: [[DMatrix<Real>; 3]; 3],
+    identity_products: Products,
+    expression_products: Products,
+    cross_products: Products,
     /// The identity and expression modes' structure displacements stacked, `3·40 × K` and
     /// `3·40 × L` (row `3j + a` is point `j`'s coordinate `a`): a photo's blocks against the
     /// pose are then one matrix product each.
@@ -896,16 +896,20 @@ impl<'a> JointProblem<'a> {
         expression_sigma: Real,
     ) -> Self {
         let identity = &space.structure.modes;
-        let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| {
-            std::array::from_fn(|a| {
-                std::array::from_fn(|b| {
-                    DMatrix::from_fn(left.len(), right.len(), |l, m| {
-                        (0..POINT_COUNT)
-                            .map(|j| point_weights[j] * left[l][j][a] * right[m][j][b])
-                            .sum()
+        let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| Products {
+            rows: left.len(),
+            entries: (0..right.len())
+                .flat_map(|m| {
+                    (0..left.len()).map(move |l| {
+                        std::array::from_fn(|ab| {
+                            let (a, b) = (ab / 3, ab % 3);
+                            (0..POINT_COUNT)
+                                .map(|j| point_weights[j] * left[l][j][a] * right[m][j][b])
+                                .sum()
+                        })
                     })
                 })
-            })
+                .collect(),
         };
         let stacked = |modes: &[Vec<Vector3<Real>>]| {
             DMatrix::from_fn(3 * POINT_COUNT, modes.len(), |row, k| modes[k][row / 3][row % 3])
@@ -922,22 +926,6 @@ impl<'a> JointProblem<'a> {
             expression_products: products(expressions, expressions),
             cross_products: products(expressions, identity),
         }
-    }
-
-    /// `Σₐᵦ Mₐᵦ Fₐᵦ`.
-    fn contract(products: &[[DMatrix<Real>; 3]; 3], m: &nalgebra::Matrix3<Real>) -> DMatrix<Real> {
-        let mut sum = DMatrix::zeros(products[0][0].nrows(), products[0][0].ncols());
-        for a in 0..3 {
-            for b in 0..3 {
-                let factor = m[(a, b)];
-                if factor != 0.0 {
-                    for (s, p) in sum.as_mut_slice().iter_mut().zip(products[a][b].as_slice()) {
-                        *s += factor * p;
-                    }
-                }
-            }
-        }
-        sum
     }
 
     /// The identity's points moved by an expression.
@@ -1059,17 +1047,16 @@ impl<'a> JointProblem<'a> {
                 h.view_mut((0, 6), (6, free.len())).copy_from(&pose_expression);
                 h.view_mut((6, 0), (free.len(), 6))
                     .copy_from(&pose_expression.transpose());
-                // Σₐᵦ Mₐᵦ Fₐᵦ whole (nine contiguous sums), then the free modes' entries.
-                let ee = Self::contract(&self.expression_products, &m);
-                let ew = Self::contract(&self.cross_products, &m);
+                // The free modes' entries of Σₐᵦ Mₐᵦ Fₐᵦ.
+                let m9 = Products::flat(&m);
                 for (f2, &l2) in free.iter().enumerate() {
                     for (f, &l) in free.iter().enumerate() {
-                        h[(6 + f, 6 + f2)] = ee[(l, l2)];
+                        h[(6 + f, 6 + f2)] = self.expression_products.contracted(l, l2, &m9);
                     }
                 }
                 for col in 0..k {
                     for (f, &l) in free.iter().enumerate() {
-                        hw[(6 + f, col)] = ew[(l, col)];
+                        hw[(6 + f, col)] = self.cross_products.contracted(l, col, &m9);
                     }
                 }
                 for (f, &l) in free.iter().enumerate() {
@@ -1093,7 +1080,8 @@ impl<'a> JointProblem<'a> {
             rhs -= product.column(k);
             eliminated.push((free, inverse, y));
         }
-        let mut whole = Self::contract(&self.identity_products, &summed);
+        let summed9 = Products::flat(&summed);
+        let mut whole = DMatrix::from_fn(k, k, |a, b| self.identity_products.contracted(a, b, &summed9));
         for c in 0..k {
             whole[(c, c)] = (whole[(c, c)] + self.ridge[c]) * (1.0 + damping);
         }
@@ -1140,6 +1128,27 @@ impl<'a> JointProblem<'a> {
             })
             .collect();
         (next_weights, next_photos)
+    }
+}
+
+/// `Fₐᵦ = Σⱼ ωⱼ Dⱼ[a]ᵀ D'ⱼ[b]` for the nine `(a, b)`, stored entry by entry (column-major,
+/// the nine values of an entry together) so that a contraction `Σₐᵦ Mₐᵦ Fₐᵦ` reads one
+/// contiguous run per entry, and only the entries asked for.
+struct Products {
+    rows: usize,
+    entries: Vec<[Real; 9]>,
+}
+
+impl Products {
+    /// `M` row-major, as the entries hold `(a, b)` at `3a + b`.
+    fn flat(m: &nalgebra::Matrix3<Real>) -> [Real; 9] {
+        std::array::from_fn(|ab| m[(ab / 3, ab % 3)])
+    }
+
+    /// Entry `(row, col)` of `Σₐᵦ Mₐᵦ Fₐᵦ`.
+    fn contracted(&self, row: usize, col: usize, m: &[Real; 9]) -> Real {
+        let entry = &self.entries[col * self.rows + row];
+        entry.iter().zip(m).map(|(f, m)| f * m).sum()
     }
 }
 
