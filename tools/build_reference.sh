@@ -9,8 +9,9 @@
 #    (../shared/models, or tools/fetch-models) and ../shared/data/{lps-head,dlib-faces}; without
 #    them the reference is written without a photo structure (the photo stages then deform
 #    from the landmark vertices);
-# 3. tools/face_space --write: the face space (ICT-FaceKit's 60 identity modes on the grid),
-#    from ICT_FACE_DIR's identities.f32.
+# 3. tools/face_space --write: the face space (ICT-FaceKit's 60 identity modes and 53 expression
+#    blendshapes on the grid, as `fit-reference --identity-modes --expression-modes` makes them),
+#    from ICT_FACE_DIR's identities.f32, expressions.f32 and expressions.txt.
 #
 # Usage: tools/build_reference.sh [ICT_FACE_DIR]
 #   ICT_FACE_DIR holds neutral_face.obj and landmarks68.txt (default: ../shared/data/ict-face).

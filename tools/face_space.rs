@@ -13,8 +13,9 @@
 //! the same way.
 //!
 //! Run: `cargo run --release --example face_space -- [--ict DIR] [--data DIR] [--subjects N]
-//! [--modes K]`; with `--write REFERENCE.json` it adds the 60 modes to that reference file (the
-//! ICT mean face's, as `tools/build_reference.sh` makes it) instead.
+//! [--modes K]`; with `--write REFERENCE.json` it adds the 60 identity modes and the 53
+//! expression blendshapes to that reference file (the ICT mean face's, as
+//! `tools/build_reference.sh` makes it) instead.
 
 #[path = "common/mod.rs"]
 mod common;
