@@ -429,6 +429,18 @@ fn bad_paths_and_flags_fail_cleanly() {
         .is_ok_and(|s| s.success());
     let good = s(&bench.good);
     let args = |list: &[&str]| list.iter().map(|a| (*a).to_owned()).collect::<Vec<String>>();
+    // A points-only reconstruction with one flag set.
+    let with_flag = |flag: &str, value: &str| {
+        args(&[
+            "reconstruct",
+            "--landmarks",
+            &good,
+            "--out",
+            &at("out"),
+            flag,
+            value,
+        ])
+    };
     let mut cases: Vec<(Vec<String>, Vec<&str>)> = vec![
         (
             args(&["render-depth", &at("folder.obj"), "--out", &at("o.exr")]),
@@ -550,99 +562,35 @@ fn bad_paths_and_flags_fail_cleanly() {
             vec!["smoothness", "NaN"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--spacing",
-                "NaN",
-            ]),
+            with_flag("--spacing", "NaN"),
             vec!["--spacing NaN must be between 0.1 and 20"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--expression-sigma",
-                "0",
-            ]),
+            with_flag("--expression-sigma", "0"),
             vec!["--expression-sigma 0 must be positive"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--expression-of",
-                "no-such-photo",
-            ]),
+            with_flag("--expression-of", "no-such-photo"),
             vec!["--expression-of no-such-photo: no usable photo has that name (the photos are "],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--eye-distance",
-                "-63",
-            ]),
+            with_flag("--eye-distance", "-63"),
             vec!["--eye-distance -63 must be positive"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--depth-size",
-                "99999999",
-            ]),
+            with_flag("--depth-size", "99999999"),
             vec!["--depth-size 99999999 must be between 16 and"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--min-photos",
-                "0",
-            ]),
+            with_flag("--min-photos", "0"),
             vec!["--min-photos must be at least 1"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--min-photos",
-                "4",
-            ]),
+            with_flag("--min-photos", "4"),
             vec!["3 usable photos, at least 4 needed"],
         ),
         (
-            args(&[
-                "reconstruct",
-                "--landmarks",
-                &good,
-                "--out",
-                &at("out"),
-                "--units",
-                "inches",
-            ]),
+            with_flag("--units", "inches"),
             vec!["--units `inches`: expected mm or canonical"],
         ),
         (
