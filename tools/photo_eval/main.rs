@@ -973,7 +973,25 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         ),
         method("contour 1", with(&|o| o.depth.contour_weight = 1.0)),
         method("all photos", with(&|o| o.drop_disagreeing = false)),
-        method("affine", with(&|o| o.deformation = Deformation::Affine)),
+        method(
+            "affine (deformed)",
+            with(&|o| {
+                o.shape = Shape::Deformed;
+                o.deformation = Deformation::Affine;
+            }),
+        ),
+        method(
+            "paper",
+            with(&|o| {
+                // The paper's method: the frontal structure kept, the structure followed fully
+                // (the paper has no shrinkage toward the mean; tools/eval's row keeps the
+                // default's), the affine deformation.
+                o.shape = Shape::Deformed;
+                o.deformation = Deformation::Affine;
+                o.structure_weight = StructureWeight::Fixed(1.0);
+                o.depth.frontal = splineface::depth::FrontalFreedom::Fixed;
+            }),
+        ),
         method("deformed", with(&|o| o.shape = Shape::Deformed)),
         method(
             "space ε2",
