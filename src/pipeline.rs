@@ -526,6 +526,13 @@ pub fn reconstruct(
             (face, Some(fit), shape)
         }
         None => {
+            if let Some(photo) = options.expression_of {
+                return Err(PipelineError::ExpressionOf {
+                    photo,
+                    reason: "the face is the deformed reference (no face space was fitted), which has no expressions"
+                        .to_owned(),
+                });
+            }
             let target = crate::face::shrunk_toward_reference(reference, &depth.structure, structure_weight)?;
             let shape = match options.shape {
                 Shape::Space { .. } => {

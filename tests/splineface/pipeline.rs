@@ -54,6 +54,62 @@ fn the_embedded_demo_subject_is_valid_and_not_the_reference() {
 }
 
 #[test]
+fn a_face_with_a_photos_expression_needs_that_photo_and_fitted_expressions() {
+    use splineface::pipeline::{PipelineError, Shape};
+    let scene = scene(&SceneOptions {
+        photos: 4,
+        ..SceneOptions::default()
+    })
+    .unwrap();
+    // Points only: fast, and enough for the shape.
+    let inputs: Vec<_> = scene
+        .inputs
+        .iter()
+        .map(|i| splineface::pipeline::Input {
+            points: i.points.clone(),
+            image: None,
+        })
+        .collect();
+    let with = |expression_of, shape| PipelineOptions {
+        expression_of,
+        shape,
+        ..PipelineOptions::default()
+    };
+    let run = |options: &PipelineOptions| reconstruct(&inputs, ReferenceFace::embedded(), options, |_| {});
+    // A photo that is not there.
+    let err = run(&with(Some(4), Shape::default())).unwrap_err();
+    assert!(
+        matches!(err, PipelineError::ExpressionOf { photo: 4, .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("there are only 4 photos"), "{err}");
+    // No expressions fitted.
+    let neutral = Shape::Space {
+        noise: Shape::DEFAULT_NOISE,
+        expressions: None,
+    };
+    let err = run(&with(Some(1), neutral)).unwrap_err();
+    assert!(err.to_string().contains("no expressions were fitted"), "{err}");
+    // The paper's shape has none either.
+    assert!(run(&with(Some(1), Shape::Deformed)).is_err());
+    // With them: the identity is the neutral run's, the surface moved by photo 1's expression.
+    let plain = run(&with(None, Shape::default())).unwrap();
+    let posed = run(&with(Some(1), Shape::default())).unwrap();
+    let (a, b) = (plain.space.as_ref().unwrap(), posed.space.as_ref().unwrap());
+    assert_eq!(a.weights, b.weights);
+    assert_eq!(a.expressions.len(), 4);
+    let moved = posed.face.surface() != plain.face.surface();
+    assert_eq!(moved, a.expressions[1].iter().any(|e| *e > 0.0));
+    assert!(
+        posed
+            .shape
+            .contains(&format!("the expression of {}", inputs[1].points.name)),
+        "{}",
+        posed.shape
+    );
+}
+
+#[test]
 fn the_library_pipeline_beats_the_mean_face() {
     let scene = scene(&SceneOptions {
         photos: 8,
