@@ -407,7 +407,8 @@ fn check_mode_shapes(
 }
 
 impl SpaceModes {
-    /// The first `k` modes only (all of them when there are fewer).
+    /// The first `k` identity modes only (all of them when there are fewer); the expressions
+    /// stay.
     pub fn truncated(&self, k: usize) -> Self {
         let k = k.min(self.sigma.len());
         SpaceModes {
