@@ -1035,8 +1035,7 @@ impl<'a> JointProblem<'a> {
                 })
                 .collect();
             let local = 6 + free.len();
-            let h = h.resize(local, local, 0.0);
-            let mut h = h;
+            let mut h = h.resize(local, local, 0.0);
             let mut hw = DMatrix::<Real>::zeros(local, k);
             hw.rows_mut(0, 6).gemm(1.0, &q, &self.identity_stacked, 0.0);
             let mut g = DVector::<Real>::zeros(local);
