@@ -811,13 +811,14 @@ fn read_fields(
 }
 
 /// The reference with a face space built from `modes`, displacement fields of its single
-/// scan `mesh` with 68 landmark vertex indices in `landmark_path`.
+/// scan with 68 landmark vertex indices in `landmark_path`.
 fn with_modes(
     reference: ReferenceFace,
-    mesh: &TriangleMesh,
+    scan: &ReferenceScan,
     landmark_path: &Path,
     modes: &ModeFiles,
 ) -> Result<ReferenceFace> {
+    let mesh = &scan.mesh;
     let vertices = mesh.positions().len();
     if has_extension(landmark_path, &["json"]) {
         bail!(
@@ -825,9 +826,9 @@ fn with_modes(
             landmark_path.display()
         );
     }
+    // The indices again (the structure was read from them): the modes move those vertices.
     let landmarks = read_vertex_indices(landmark_path, IBUG_POINT_COUNT, vertices)?;
-    let points: Vec<_> = landmarks.iter().map(|&i| mesh.positions()[i]).collect();
-    let (to_canonical, _) = unify(&from_ibug68(&points)?)?;
+    let (to_canonical, _) = unify(&scan.structure)?;
     let scan = mesh.transformed(&nalgebra::convert(to_canonical));
     let identity = read_fields(&modes.identity, vertices, &to_canonical)?;
     let sigma = vec![1.0; identity.len()];
@@ -910,7 +911,7 @@ fn fit_reference(
         build_reference(&scans, options, note)?
     };
     if let Some(modes) = modes {
-        reference = with_modes(reference, &scans[0].mesh, &landmarks[0], modes)?;
+        reference = with_modes(reference, &scans[0], &landmarks[0], modes)?;
     }
     let elapsed = start.elapsed();
     splineface::io::write_atomically(out, reference.to_json().as_bytes())

@@ -486,7 +486,7 @@ pub fn reconstruct(
                 views.len(),
                 fit_options.noise
             );
-            let fitted_expressions = fit.expressions.first().is_some_and(|e| !e.is_empty());
+            let fitted_expressions = !fit.expression_names.is_empty();
             if fitted_expressions {
                 shape.push_str(&format!(
                     ", with each photo's expression ({} modes, deviation {})",

@@ -452,21 +452,32 @@ impl SpaceModes {
             ));
         }
         check_mode_shapes(&self.grid, &self.structure, controls, "space")?;
-        let e = &self.expressions;
-        if e.names.len() != e.grid.len() {
+        self.expressions.check(controls)
+    }
+}
+
+impl ExpressionModes {
+    /// Checks one distinct, non-empty name per mode and every mode's shape
+    /// ([`check_mode_shapes`]) for a grid of `controls` control points.
+    pub(crate) fn check(&self, controls: usize) -> Result<(), String> {
+        if self.names.len() != self.grid.len() {
             return Err(format!(
                 "space expressions: {} names for {} modes",
-                e.names.len(),
-                e.grid.len()
+                self.names.len(),
+                self.grid.len()
             ));
         }
         let mut seen = std::collections::HashSet::new();
-        if let Some(name) = e.names.iter().find(|n| n.is_empty() || !seen.insert(n.as_str())) {
+        if let Some(name) = self
+            .names
+            .iter()
+            .find(|n| n.is_empty() || !seen.insert(n.as_str()))
+        {
             return Err(format!(
                 "space expressions: the name {name:?} is empty or repeated"
             ));
         }
-        check_mode_shapes(&e.grid, &e.structure, controls, "space expressions")
+        check_mode_shapes(&self.grid, &self.structure, controls, "space expressions")
     }
 }
 
@@ -662,8 +673,17 @@ pub fn build_reference(
         return Err(ReferenceError::NoScans);
     }
     options.validate()?;
-
     let prepared = prepare(scans, options)?;
+    fitted_reference(&prepared, scans, options, note)
+}
+
+/// Step 4 of [`build_reference`]: the grid fitted to the prepared scans' mean heights.
+fn fitted_reference(
+    prepared: &Prepared,
+    scans: &[ReferenceScan],
+    options: &ReferenceOptions,
+    note: &str,
+) -> Result<ReferenceFace, ReferenceError> {
     let mean_heights: Vec<Real> = (0..prepared.xy.len())
         .map(|i| prepared.heights.iter().map(|h| h[i]).sum::<Real>() / scans.len() as Real)
         .collect();
@@ -691,17 +711,16 @@ pub fn build_reference(
         median: percentile(0.5),
         p95: percentile(0.95),
     };
-    let mean = prepared.mean;
-    let frontal: Vec<Point2<Real>> = mean.iter().map(|p| p.xy()).collect();
+    let frontal: Vec<Point2<Real>> = prepared.mean.iter().map(|p| p.xy()).collect();
     let edges = delaunay_edges(&frontal).map_err(|source| ReferenceError::Structure { scan: 0, source })?;
     Ok(ReferenceFace {
         surface,
-        structure: mean,
+        structure: prepared.mean.clone(),
         photo_structure: None,
         space: None,
         edges,
         frame: prepared.frame,
-        clip: prepared.clip,
+        clip: prepared.clip.clone(),
         fit,
         provenance: Provenance {
             program: format!("splineface {} fit-reference", env!("CARGO_PKG_VERSION")),
@@ -849,8 +868,9 @@ pub fn build_reference_with_space(
             expected: "at least 3 for a face space learnt from scans",
         });
     }
-    let reference = build_reference(scans, options, note)?;
+    options.validate()?;
     let prepared = prepare(scans, options)?;
+    let reference = fitted_reference(&prepared, scans, options, note)?;
     let fitter = prepared.fitter(options)?;
     let n = scans.len();
     let mut grids = Vec::with_capacity(n);
@@ -865,7 +885,7 @@ pub fn build_reference_with_space(
     let deviations = nalgebra::DMatrix::from_fn(n, 3 * controls, |s, i| {
         grids[s][i / 3][i % 3] - mean_grid[i / 3][i % 3]
     });
-    let svd = deviations.clone().svd(true, false);
+    let svd = deviations.svd(true, false);
     let u = svd.u.expect("asked for U");
     let largest = svd.singular_values.max();
     let scale = 1.0 / ((n - 1) as Real).sqrt();

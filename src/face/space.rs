@@ -132,12 +132,10 @@ impl FaceSpace {
             structure,
             note: note.to_owned(),
         };
-        let mut modes = self.to_modes("");
-        modes.expressions = expressions;
-        modes
+        expressions
             .check(self.surfaces.base().rows() * self.surfaces.base().cols())
             .map_err(FaceError::Space)?;
-        self.expressions = modes.expressions;
+        self.expressions = expressions;
         Ok(self)
     }
 
@@ -505,7 +503,6 @@ impl<'a> Carrier<'a> {
         let raster = frame.raster(options.sample_spacing);
         let mut hits = Vec::new();
         let mut params = Vec::new();
-        let mut gaps = Vec::new();
         let mut points = Vec::new();
         for (index, hit) in front_hits(scan, &raster).into_iter().enumerate() {
             let Some(hit) = hit else { continue };
@@ -529,7 +526,7 @@ impl<'a> Carrier<'a> {
         // The scan must be the one the grid was fitted to: its front surface within the fit's
         // residuals of the grid (the median against ten times the fit's median, and a unit).
         let on_grid = reference.surface().eval_many(&params)?;
-        gaps.extend(on_grid.iter().zip(&points).map(|(b, p)| (b - p).norm()));
+        let mut gaps: Vec<Real> = on_grid.iter().zip(&points).map(|(b, p)| (b - p).norm()).collect();
         gaps.sort_unstable_by(Real::total_cmp);
         let median = gaps[gaps.len() / 2];
         if median > 10.0 * reference.fit().median + 1.0 {
@@ -636,20 +633,21 @@ impl FaceSpace {
     /// Σᵢ Σⱼ ωⱼ ‖oᵢ + sᵢ P Rᵢ (S(w) + E eᵢ)ⱼ − xᵢⱼ‖² / (sᵢ² ε²)  +  Σₖ wₖ² / σₖ²  +  Σᵢ ‖eᵢ‖² / τ²
     /// ```
     ///
-    /// (reprojection errors measured in canonical units, `ε` per coordinate, `E eᵢ` the
-    /// expressions' displacement of the structure), by alternating the poses (closed form,
-    /// then Levenberg–Marquardt, on centred points), the identity (linear, summed over the
-    /// photos first, so that the cost does not grow with their number) and each photo's
-    /// expression (a bounded least-squares problem, by projected Gauss–Seidel) until the
-    /// weights settle; an identity weight beyond [`PLAUSIBLE_SIGMAS`] prior deviations is then
-    /// held there ([`PhotoSpaceFit::held`]). `views[i]` are photo `i`'s 40 points with `y` up
+    /// (reprojection errors measured in about canonical units, in a fixed unit per photo, see
+    /// `PhotoUnknowns`; `ε` per coordinate, `E eᵢ` the expressions' displacement of the
+    /// structure). Every photo starts from its pose for the mean face (closed form, then
+    /// refined), neutral; then Levenberg–Marquardt runs over all unknowns at once, each
+    /// photo's pose and expression eliminated onto the identity (a Schur complement, so that
+    /// the cost grows linearly with the photos), with a backtracking search along each step
+    /// (expression weights are clamped to `[0, 1]`), until the cost stops falling. An identity
+    /// weight beyond [`PLAUSIBLE_SIGMAS`] prior deviations is then held there
+    /// ([`PhotoSpaceFit::held`]). `views[i]` are photo `i`'s 40 points with `y` up
     /// ([`crate::align::PhotoPoints::y_up`]).
     ///
     /// # Errors
     /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise or an
     /// expression deviation that is not positive, or point weights that are negative or all
-    /// zero; [`FaceError::Degenerate`] when a photo's pose is not determined;
-    /// [`FaceError::Kernel`] when the weights are not.
+    /// zero; [`FaceError::Degenerate`] when a photo's pose is not determined.
     pub fn fit_photos(
         &self,
         views: &[Vec<Point2<Real>>],
@@ -861,7 +859,7 @@ struct PhotoUnknowns {
 }
 
 /// The constants of [`FaceSpace::fit_photos`]'s Levenberg–Marquardt iterations over all
-/// unknowns at once (identity weights, and per photo its rotation, `a`, `c` and expression),
+/// unknowns at once (identity weights, and per photo its rotation, `b`, `d` and expression),
 /// solved by eliminating each photo's unknowns (a Schur complement onto the identity weights).
 ///
 /// A photo's normal-equation blocks between modes only involve `Rᵀ Pᵀ P R = I − n nᵀ` (`n` its
