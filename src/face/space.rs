@@ -181,12 +181,6 @@ impl FaceSpace {
         &self.expressions
     }
 
-    /// This space without its expression modes.
-    pub fn without_expressions(mut self) -> Self {
-        self.expressions = ExpressionModes::default();
-        self
-    }
-
     /// The surfaces of the space.
     pub fn surfaces(&self) -> &SurfaceSpace {
         &self.surfaces
