@@ -33,7 +33,10 @@ use crate::align::{
 };
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
 use crate::export::{PngTexture, StepOptions, encode_glb, encode_png, encode_step};
-use crate::face::{ClippedMesh, Deformation, FaceError, FaceSurface, MeshOptions, Units};
+use crate::face::{
+    ClippedMesh, Deformation, FaceError, FaceSurface, MeshOptions, RefineOptions, RefineView, Refinement,
+    Units,
+};
 use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
 use crate::reference::ReferenceFace;
 use crate::render::{DepthMap, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png};
@@ -99,6 +102,9 @@ pub struct PipelineOptions {
     /// the neutral identity; needs [`Shape::Space`] with expressions fitted, and the photo
     /// kept ([`PipelineError::ExpressionOf`] otherwise).
     pub expression_of: Option<usize>,
+    /// Refine the face-space fit with the photos' pixels ([`crate::face::FaceSpace::refine_photos`]):
+    /// with images and [`Shape::Space`] only; `None` keeps the landmark fit.
+    pub refine: Option<RefineOptions>,
 }
 
 /// Where the face's shape comes from.
@@ -225,6 +231,7 @@ impl Default for PipelineOptions {
             structure_weight: StructureWeight::Auto,
             shape: Shape::default(),
             expression_of: None,
+            refine: None,
         }
     }
 }
@@ -303,6 +310,8 @@ pub struct Reconstruction {
     pub structure_weight: (Real, String),
     /// The face space's fit, when the shape came from it ([`Shape::Space`]).
     pub space: Option<crate::face::PhotoSpaceFit>,
+    /// The refinement by the photos' pixels, when it ran ([`PipelineOptions::refine`]).
+    pub refinement: Option<Refinement>,
     /// How the shape was made, in words (for the report).
     pub shape: String,
     /// Wall time per stage, seconds, in order.
@@ -474,12 +483,34 @@ pub fn reconstruct(
             }
         }
     };
+    let mut refinement = None;
+    let mut surface_start = start;
     let (face, space_fit, shape) = match space {
         Some((space, fit_options)) => {
             let views: Vec<Vec<nalgebra::Point2<Real>>> =
                 kept.iter().map(|&k| inputs[k].points.y_up()).collect();
             let weights = crate::structure::contour_weighted(options.depth.contour_weight);
-            let fit = space.fit_photos(&views, &weights, &fit_options)?;
+            let mut fit = space.fit_photos(&views, &weights, &fit_options)?;
+            timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
+            if let (Some(refine), true) = (options.refine, with_images) {
+                progress("refining the face with the photos' pixels");
+                let start = Instant::now();
+                let dense: Vec<RefineView> = kept
+                    .iter()
+                    .zip(&views)
+                    .map(|(&k, v)| RefineView {
+                        image: &inputs[k].image.as_ref().expect("checked above").grey,
+                        points: v,
+                    })
+                    .collect();
+                let refined = space.refine_photos(reference, &fit, &dense, &weights, &refine)?;
+                if refined.accepted {
+                    fit.weights = refined.weights.clone();
+                }
+                timings.push(("refinement".to_owned(), start.elapsed().as_secs_f64()));
+                refinement = Some(refined);
+            }
+            surface_start = Instant::now();
             let mut shape = format!(
                 "the reference's face space ({} modes) fitted to the points of {} photos, noise {} units",
                 space.mode_count(),
@@ -523,6 +554,9 @@ pub fn reconstruct(
                     crate::face::PLAUSIBLE_SIGMAS
                 ));
             }
+            if let Some(r) = &refinement {
+                shape.push_str(&format!("; {}", r.note));
+            }
             (face, Some(fit), shape)
         }
         None => {
@@ -560,7 +594,7 @@ pub fn reconstruct(
     } else {
         None
     };
-    timings.push(("surface".to_owned(), start.elapsed().as_secs_f64()));
+    timings.push(("surface".to_owned(), surface_start.elapsed().as_secs_f64()));
     Ok(Reconstruction {
         frontal,
         rasl,
@@ -571,6 +605,7 @@ pub fn reconstruct(
         dropped,
         structure_weight: (structure_weight, weight_note),
         space: space_fit,
+        refinement,
         shape,
         agreement: if with_images {
             names.into_iter().zip(agreement).collect()
@@ -789,6 +824,18 @@ impl Reconstruction {
                 "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
                 "space_rms_units": self.space.as_ref().map(|s| s.rms_units.clone()),
                 "space_held_modes": self.space.as_ref().map(|s| s.held.clone()),
+                "refinement": self.refinement.as_ref().map(|r| json!({
+                    "accepted": r.accepted,
+                    "note": r.note,
+                    "disagreement_before": r.disagreement.0,
+                    "disagreement_after": r.disagreement.1,
+                    "landmark_rms_units_before": r.landmark_rms.0,
+                    "landmark_rms_units_after": r.landmark_rms.1,
+                    "samples": r.samples.0,
+                    "samples_seen_twice": r.samples.1,
+                    "coverage": r.coverage,
+                    "iterations": r.iterations,
+                })),
                 "structure_weight": self.structure_weight.0,
                 "structure_weight_reason": self.structure_weight.1,
                 "deformation": if self.space.is_some() {

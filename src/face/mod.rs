@@ -23,6 +23,7 @@
 //! Which is the default is set by measurement on ICT-FaceKit identities
 //! (`cargo run --release --example surface_eval`): see [`Deformation::default`].
 
+mod refine;
 mod space;
 mod tessellate;
 
@@ -33,6 +34,7 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
+pub use refine::{NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement};
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 

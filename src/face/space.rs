@@ -196,6 +196,11 @@ impl FaceSpace {
         &self.sigma
     }
 
+    /// The mean structure and each mode's displacement of it.
+    pub(crate) fn structure_samples(&self) -> &SpaceSamples {
+        &self.structure
+    }
+
     /// Each mode's displacement of the 40 points (`[mode][point]`).
     pub fn structure_modes(&self) -> &[Vec<Vector3<Real>>] {
         &self.structure.modes

@@ -300,6 +300,23 @@ fn run_set(
     match reconstruct(&inputs, reference, options, |_| {}) {
         Ok(result) => {
             let s = score(&result.output_mesh(), &result.structure(), subject)?;
+            if std::env::var("REFINE_DIAG").is_ok()
+                && let Some(r) = &result.refinement
+            {
+                let ms: Real = result
+                    .timings
+                    .iter()
+                    .filter(|(stage, _)| stage == "refinement")
+                    .map(|(_, t)| 1e3 * t)
+                    .sum();
+                eprintln!(
+                    "  subject {} × {}: {:.3} mm; {} ({ms:.0} ms)",
+                    set.subject,
+                    set.photos.len(),
+                    s.distance.mean,
+                    r.note
+                );
+            }
             if std::env::var("DIAG").is_ok() {
                 diagnose(&result, set, subject);
             }
@@ -940,6 +957,7 @@ fn expressions(
 
 /// The methods compared: the default first, then one change from it each.
 fn methods(names: &[String]) -> Result<Vec<Method>> {
+    use splineface::face::RefineOptions;
     use splineface::pipeline::{Shape, StructureWeight};
     let default = PipelineOptions::default();
     let with = |f: &dyn Fn(&mut PipelineOptions)| {
@@ -1022,6 +1040,44 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 }),
             )
         },
+        method("refine", with(&|o| o.refine = Some(RefineOptions::default()))),
+        method(
+            "refine β0.03",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    beta: 0.03,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine β0.3",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    beta: 0.3,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine ungated",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    min_gain: Real::NEG_INFINITY,
+                    landmark_slack: Real::INFINITY,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine orthographic",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    perspective: false,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
     ];
     if names.is_empty() {
         return Ok(all.into_iter().take(1).collect());
