@@ -221,6 +221,11 @@ struct OutputArgs {
     /// instead of the neutral identity.
     #[arg(long, value_name = "PHOTO")]
     expression_of: Option<String>,
+    /// Keep the landmark fit: do not refine the face with the photos' pixels (the refinement
+    /// makes the photos agree on what lies at each point of the face; it needs images and
+    /// `--shape space`).
+    #[arg(long)]
+    no_refine: bool,
     /// The surface deformation of `--shape deformed`: `local` (default, by measurement) or
     /// `affine` (the paper's).
     #[arg(long, default_value = "local")]
@@ -312,6 +317,11 @@ impl OutputArgs {
                 spacing: self.spacing,
             },
             depth_map_size: self.depth_size,
+            refine: if self.no_refine {
+                None
+            } else {
+                PipelineOptions::default().refine
+            },
             ..PipelineOptions::default()
         })
     }

@@ -11,11 +11,14 @@
 //!    reference has no space, the reference grid deformed to the estimated structure, followed
 //!    as far as the evidence allows ([`StructureWeight`]; [`crate::face::shrunk_toward_reference`],
 //!    [`crate::face::FaceSurface::deform`]). Then its clipped mesh, textured from the most
-//!    frontal photo when there are images. The photo stages use the reference as the photo
-//!    path sees it ([`ReferenceFace::as_seen_in_photos`]).
+//!    frontal photo when there are images. With images and [`PipelineOptions::refine`], the
+//!    face-space fit is refined by the photos' pixels ([`crate::face::FaceSpace::refine_photos`]:
+//!    the photos are made to agree on what lies at each point of the face). The photo stages
+//!    use the reference as the photo path sees it ([`ReferenceFace::as_seen_in_photos`]).
 //! 4. **Outputs** ([`Reconstruction::files`]), in the chosen units: `face.obj` (+ `face.mtl`,
 //!    `face.png` with a texture), `face.glb`, `face.ply`, `surface.json`, `surface.step`,
-//!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, and `aligned/*.png` after RASL.
+//!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, `aligned/*.png` after RASL, and
+//!    `consistency.png` after the refinement.
 //!
 //! Everything is computed before anything is written, so a caller can write the files all or
 //! nothing ([`crate::io::write_files_atomically`]).
@@ -554,8 +557,13 @@ pub fn reconstruct(
                     crate::face::PLAUSIBLE_SIGMAS
                 ));
             }
+            let mut face = face;
             if let Some(r) = &refinement {
                 shape.push_str(&format!("; {}", r.note));
+                if r.accepted && !r.displacement.is_empty() {
+                    face = displaced(reference, &face, &r.displacement)?;
+                    shape.push_str(", with a displacement of the control grid");
+                }
             }
             (face, Some(fit), shape)
         }
@@ -615,6 +623,51 @@ pub fn reconstruct(
         timings,
         options: *options,
     })
+}
+
+/// The consistency map as a picture: the photos' disagreement on the landmark fit's face
+/// (left) and on the refined one (right), each sample a 4 × 4 block, on one scale (0 to 1
+/// normalised intensity; dark where fewer than two photos see the face).
+fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, String> {
+    const BLOCK: usize = 4;
+    let (w, h) = (map.width, map.height);
+    let gap = 4;
+    let width = (2 * w + gap) * BLOCK;
+    let height = h * BLOCK;
+    let mut values = vec![Real::NAN; width * height];
+    for (side, grid) in [(0, &map.before), (w + gap, &map.after)] {
+        for r in 0..h {
+            for c in 0..w {
+                let v = grid[r * w + c];
+                for dr in 0..BLOCK {
+                    for dc in 0..BLOCK {
+                        values[(r * BLOCK + dr) * width + (side + c) * BLOCK + dc] = v;
+                    }
+                }
+            }
+        }
+    }
+    crate::render::heatmap_png(&values, width, height, 1.0, "").map_err(|e| e.to_string())
+}
+
+/// `face` with every control point moved by `displacement` (row-major), same structure.
+fn displaced(
+    reference: &ReferenceFace,
+    face: &FaceSurface,
+    displacement: &[nalgebra::Vector3<Real>],
+) -> Result<FaceSurface, FaceError> {
+    let surface = face.surface();
+    let controls = surface
+        .control_points()
+        .iter()
+        .zip(displacement)
+        .map(|(c, d)| c + d)
+        .collect();
+    FaceSurface::from_surface(
+        reference,
+        surface.with_control_points(controls)?,
+        face.structure().to_vec(),
+    )
 }
 
 fn encode_error(file: &str) -> impl Fn(String) -> PipelineError + '_ {
@@ -728,6 +781,14 @@ impl Reconstruction {
         files.push(("depth.exr".into(), exr));
         files.push(("depth.png".into(), png));
         files.push(("preview.png".into(), preview));
+
+        // Where the photos agree, before and after the refinement.
+        if let Some(refinement) = &self.refinement {
+            files.push((
+                "consistency.png".into(),
+                consistency_png(&refinement.map).map_err(encode_error("consistency.png"))?,
+            ));
+        }
 
         // RASL's pictures.
         if let Some(rasl) = &self.rasl {

@@ -34,7 +34,9 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
-pub use refine::{NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement};
+pub use refine::{
+    ConsistencyMap, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement, Window,
+};
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 

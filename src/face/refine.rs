@@ -18,14 +18,19 @@
 //! * `πᵢ` is photo `i`'s camera: `x = o + s · (P R X) / (1 − κ (R X)_z)`, the scaled
 //!   orthographic camera of the landmark fit with a perspective term `κ = 1/d` (`d` the
 //!   camera's distance, canonical units): near cameras magnify the nose.
-//! * `Nᵢ` is photo `i`'s grey image, **locally normalised** (its local mean removed and divided
-//!   by its local deviation over a window of [`NORMALISATION_EYES`] eye distances): shading
-//!   that varies smoothly across the face (light from another side in each photo) cancels;
-//!   texture and edges (eyes, brows, nostrils, lips, skin detail) remain. This is the choice
-//!   the method leaves open (normalised cross-correlation of patches, or colour after a gain
-//!   and bias): it is the cross-correlation's per-pixel form, cheap and with an exact
-//!   Jacobian (the normalised image's gradient). A per-photo gain and bias alone cannot
-//!   follow a light that moves between photos.
+//! * `Nᵢ` is photo `i`'s grey intensity **normalised on the surface**: at each sample, the
+//!   photo's intensities over the sample's neighbours on the surface (a Gaussian window of
+//!   [`NORMALISATION_EYES`] eye distances) give a local mean and deviation, and `N = (I −
+//!   mean) / deviation`. Shading that varies smoothly across the face (a light from another
+//!   side in each photo) cancels; texture and edges (eyes, brows, nostrils, lips, skin
+//!   detail) remain. This is the choice the method leaves open (normalised cross-correlation
+//!   of patches, or colour after a per-photo gain and bias): it is the cross-correlation's
+//!   per-sample form, and a per-photo gain and bias cannot follow a light that moves between
+//!   photos. The window lies on the surface, not in the image, so that it covers the same part
+//!   of the face in every photo however obliquely each sees it: measured on photos rendered
+//!   from a member of the space (`tests/splineface/refine.rs`), a window in the image made
+//!   the shape drift away from the truth as the consistency's weight grew. The normalisation
+//!   is held fixed while a step is solved for and recomputed wherever the cost is taken.
 //! * `μₛ` is the weighted mean over the views that see sample `s` (the unknown albedo,
 //!   eliminated exactly: the Jacobian of each residual has the views' mean Jacobian taken
 //!   off); `cᵢₛ` is how squarely photo `i` sees the sample (0 when it faces away or lies behind
@@ -84,6 +89,16 @@ pub struct RefineOptions {
     pub noise: Real,
     /// Refine each photo's perspective `κ` (else the cameras stay scaled orthographic).
     pub perspective: bool,
+    /// Where the local normalisation's window lies.
+    pub window: Window,
+    /// Also fit a depth displacement of every control point (the detail the space cannot
+    /// carry), held by a thin-plate smoothness ([`RefineOptions::field_bend`]) and a ridge
+    /// ([`RefineOptions::field_sigma`]).
+    pub field: bool,
+    /// The deviation of one second difference of the displacement grid, canonical units.
+    pub field_bend: Real,
+    /// The prior deviation of one control point's displacement, canonical units.
+    pub field_sigma: Real,
     /// The smallest relative fall of the disagreement for which the refinement is kept.
     pub min_gain: Real,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
@@ -102,10 +117,26 @@ impl Default for RefineOptions {
             beta: 0.1,
             noise: 4.0,
             perspective: true,
+            window: Window::Image,
+            field: false,
+            field_bend: 3.0,
+            field_sigma: 10.0,
             min_gain: 0.02,
-            landmark_slack: 0.5,
+            landmark_slack: Real::INFINITY,
         }
     }
+}
+
+/// Where the local normalisation of the photos' intensities takes its window (see the
+/// [module documentation](self)).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Window {
+    /// In each photo's image, [`NORMALISATION_EYES`] of that photo's eye distances: each
+    /// photo's crop is normalised once per level.
+    Image,
+    /// On the surface, [`NORMALISATION_EYES`] eye distances about each sample, over the
+    /// samples the photo sees: the same part of the face in every photo.
+    Surface,
 }
 
 /// One photo as [`FaceSpace::refine_photos`] takes it.
@@ -117,8 +148,11 @@ pub struct RefineView<'a> {
     pub points: &'a [Point2<Real>],
 }
 
-/// A photo's camera after refinement: `x = offset + scale · (P R X) / (1 − κ (R X)_z)`, `y`
-/// up, in the photo's pixels.
+/// A photo's camera after refinement, a pinhole camera with its principal point at the
+/// image's centre `c`: `x = c + (o − c + s · P R X) / (1 − κ (R X)_z)`, `y` up, in the
+/// photo's pixels. `o` is where the structure's origin projects, `s` the pixels per canonical
+/// unit there, `κ` the inverse of the origin's distance from the camera; with `κ = 0` it is
+/// the landmark fit's scaled orthographic camera `x = o + s · P R X`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RefinedCamera {
     /// `R`.
@@ -129,22 +163,56 @@ pub struct RefinedCamera {
     pub offset: Vector2<Real>,
     /// `κ`, per canonical unit: the inverse of the camera's distance (0: orthographic).
     pub perspective: Real,
+    /// `c`, the principal point (the image's centre), pixels (`y` up); fixed.
+    pub centre: Vector2<Real>,
+}
+
+/// A camera's projection of a point, linearised.
+struct Projected {
+    /// `q = R X`.
+    q: Vector3<Real>,
+    /// The image point (`y` up).
+    p: Point2<Real>,
+    /// `∂p/∂q`.
+    dq: Matrix2x3<Real>,
+    /// `∂p/∂(log s, oₓ, o_y, κ)`.
+    dcamera: nalgebra::Matrix2x4<Real>,
+}
+
+impl Projected {
+    /// `∂pₐ/∂(δ, log s, o, κ)` for row `a`: the rotation's part through `∂q/∂δ = −[q]×`.
+    fn camera_row(&self, a: usize) -> [Real; CAMERA] {
+        let dqa: Vector3<Real> = self.dq.row(a).transpose();
+        let rotation = self.q.cross(&dqa);
+        let c = self.dcamera.row(a);
+        [rotation.x, rotation.y, rotation.z, c[0], c[1], c[2], c[3]]
+    }
 }
 
 impl RefinedCamera {
-    /// Where the camera sees `x` (`y` up), with the derivative of that place in the camera
-    /// frame's point `q = R x`; `None` behind the camera (or too near it).
-    fn project(&self, x: &Point3<Real>) -> Option<(Vector3<Real>, Point2<Real>, Matrix2x3<Real>)> {
+    /// Where the camera sees `x`, linearised; `None` behind the camera (or too near it).
+    fn project(&self, x: &Point3<Real>) -> Option<Projected> {
         let q = self.rotation * x.coords;
         let den = 1.0 - self.perspective * q.z;
         if den < 0.2 {
             return None;
         }
-        let f = self.scale / den;
-        let p = Point2::new(self.offset.x + f * q.x, self.offset.y + f * q.y);
-        let g = f * self.perspective / den;
-        let dq = Matrix2x3::new(f, 0.0, g * q.x, 0.0, f, g * q.y);
-        Some((q, p, dq))
+        let m = self.offset - self.centre + Vector2::new(q.x, q.y) * self.scale;
+        let p = Point2::from(self.centre + m / den);
+        let (f, g) = (self.scale / den, self.perspective / (den * den));
+        let dq = Matrix2x3::new(f, 0.0, g * m.x, 0.0, f, g * m.y);
+        let (sx, sy) = (f * q.x, f * q.y);
+        let dcamera = nalgebra::Matrix2x4::new(
+            sx,
+            1.0 / den,
+            0.0,
+            m.x * q.z / (den * den),
+            sy,
+            0.0,
+            1.0 / den,
+            m.y * q.z / (den * den),
+        );
+        Some(Projected { q, p, dq, dcamera })
     }
 
     /// The camera moved by a step `[δ (3), log-scale, offset (2), κ]`.
@@ -154,6 +222,7 @@ impl RefinedCamera {
             scale: self.scale * step[3].exp(),
             offset: self.offset + Vector2::new(step[4], step[5]),
             perspective: (self.perspective + step[6]).max(0.0),
+            centre: self.centre,
         }
     }
 }
@@ -167,6 +236,10 @@ pub struct Refinement {
     /// The identity weights: the refined ones when [`Refinement::accepted`], else the landmark
     /// fit's.
     pub weights: Vec<Real>,
+    /// The displacement of every control point of the space's member with
+    /// [`Refinement::weights`] (row-major; along `z`), when [`RefineOptions::field`] asked for
+    /// one and the refinement was kept; empty otherwise.
+    pub displacement: Vec<Vector3<Real>>,
     /// The refined cameras, one per photo (the landmark fit's when not accepted).
     pub cameras: Vec<RefinedCamera>,
     /// The photos' disagreement (weighted RMS of the normalised intensities about each
@@ -174,6 +247,9 @@ pub struct Refinement {
     pub disagreement: (Real, Real),
     /// The landmarks' weighted RMS (canonical units) before and after.
     pub landmark_rms: (Real, Real),
+    /// The photos' disagreement over the face before and after, finest level
+    /// (`consistency.png`).
+    pub map: ConsistencyMap,
     /// Per photo: the fraction of the face's samples it sees, finest level.
     pub coverage: Vec<Real>,
     /// Samples at the finest level, and those seen by two photos or more.
@@ -186,22 +262,38 @@ pub struct Refinement {
     pub note: String,
 }
 
-/// A photo at one level: the face's crop, resampled, locally normalised, with its gradient.
+/// Where on the face the photos agree: per sample of the finest level, laid on the frontal
+/// sampling grid, the weighted RMS of the photos' normalised intensities about their mean.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConsistencyMap {
+    /// Columns (along `x`).
+    pub width: usize,
+    /// Rows (along `y`, from the bottom).
+    pub height: usize,
+    /// On the landmark fit's face, row-major from the bottom; NaN where fewer than two photos
+    /// see the face (or outside it).
+    pub before: Vec<Real>,
+    /// The same on the refined face.
+    pub after: Vec<Real>,
+}
+
+/// A photo at one level: the face's crop, resampled and lightly blurred, with its gradient.
 struct LevelImage {
     width: usize,
     height: usize,
     /// The crop's pixel `(c, r)` is the photo's pixel `origin + (c, r) / factor` (`y` down).
     origin: Vector2<Real>,
     factor: Real,
-    normalised: Vec<f32>,
+    values: Vec<f32>,
     gx: Vec<f32>,
     gy: Vec<f32>,
 }
 
 impl LevelImage {
     /// The photo's crop about `box_` (`[x0, y0, x1, y1]` in its pixels, `y` down) at `factor`
-    /// crop pixels per photo pixel (at most 1), normalised over `window` crop pixels.
-    fn new(image: &GreyImage, box_: [Real; 4], factor: Real, window: Real) -> Self {
+    /// crop pixels per photo pixel (at most 1), normalised over `window` crop pixels (a
+    /// Gaussian deviation) when one is given ([`Window::Image`]).
+    fn new(image: &GreyImage, box_: [Real; 4], factor: Real, window: Option<Real>) -> Self {
         let origin = Vector2::new(box_[0], box_[1]);
         let width = (((box_[2] - box_[0]) * factor).ceil() as usize).max(8);
         let height = (((box_[3] - box_[1]) * factor).ceil() as usize).max(8);
@@ -223,16 +315,21 @@ impl LevelImage {
             }
         });
         let crop = blur(&crop, width, height, 0.7);
-        let mean = blur(&crop, width, height, window);
-        let centred: Vec<f32> = crop.iter().zip(&mean).map(|(v, m)| v - m).collect();
-        let squares: Vec<f32> = centred.iter().map(|v| v * v).collect();
-        let variance = blur(&squares, width, height, window);
-        // A floor on the deviation: flat skin is not amplified into noise.
-        let normalised: Vec<f32> = centred
-            .iter()
-            .zip(&variance)
-            .map(|(v, s)| v / (s + 0.02f32 * 0.02).sqrt())
-            .collect();
+        let values = match window {
+            None => crop,
+            Some(window) => {
+                let mean = blur(&crop, width, height, window);
+                let centred: Vec<f32> = crop.iter().zip(&mean).map(|(v, m)| v - m).collect();
+                let squares: Vec<f32> = centred.iter().map(|v| v * v).collect();
+                let variance = blur(&squares, width, height, window);
+                let floor = (DEVIATION_FLOOR * DEVIATION_FLOOR) as f32;
+                centred
+                    .iter()
+                    .zip(&variance)
+                    .map(|(v, s)| v / (s + floor).sqrt())
+                    .collect()
+            }
+        };
         let mut gx = vec![0.0f32; width * height];
         let mut gy = vec![0.0f32; width * height];
         for r in 0..height {
@@ -240,9 +337,9 @@ impl LevelImage {
                 let (c0, c1) = (c.saturating_sub(1), (c + 1).min(width - 1));
                 let (r0, r1) = (r.saturating_sub(1), (r + 1).min(height - 1));
                 gx[r * width + c] =
-                    (normalised[r * width + c1] - normalised[r * width + c0]) / (c1 - c0).max(1) as f32;
+                    (values[r * width + c1] - values[r * width + c0]) / (c1 - c0).max(1) as f32;
                 gy[r * width + c] =
-                    (normalised[r1 * width + c] - normalised[r0 * width + c]) / (r1 - r0).max(1) as f32;
+                    (values[r1 * width + c] - values[r0 * width + c]) / (r1 - r0).max(1) as f32;
             }
         }
         LevelImage {
@@ -250,10 +347,15 @@ impl LevelImage {
             height,
             origin,
             factor,
-            normalised,
+            values,
             gx,
             gy,
         }
+    }
+
+    /// Whether a crop place lies inside the crop.
+    fn contains(&self, at: &Vector2<Real>) -> bool {
+        at.x >= 0.0 && at.y >= 0.0 && at.x <= (self.width - 1) as Real && at.y <= (self.height - 1) as Real
     }
 
     /// The crop's coordinates of a photo point given `y` up.
@@ -264,13 +366,19 @@ impl LevelImage {
         )
     }
 
-    /// The normalised intensity and its gradient in the photo's `y`-up pixels at a crop place;
+    /// The intensity and its gradient in the photo's `y`-up pixels at a crop place;
     /// `None` outside the crop.
+    ///
+    /// A place outside the crop reads its nearest border pixel with no gradient: a sample that
+    /// the visibility test let in ([`LevelImage::contains`]) keeps a residual wherever a step
+    /// moves it, so that leaving the crop does not lower the cost.
     fn sample(&self, at: &Vector2<Real>) -> Option<(Real, Vector2<Real>)> {
-        let (x, y) = (at.x, at.y);
-        if !(x >= 0.0 && y >= 0.0 && x <= (self.width - 1) as Real && y <= (self.height - 1) as Real) {
+        if !(at.x.is_finite() && at.y.is_finite()) {
             return None;
         }
+        let inside = self.contains(at);
+        let x = at.x.clamp(0.0, (self.width - 1) as Real);
+        let y = at.y.clamp(0.0, (self.height - 1) as Real);
         let (x0, y0) = (x.floor() as usize, y.floor() as usize);
         let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
         let (fx, fy) = (x - x0 as Real, y - y0 as Real);
@@ -281,8 +389,12 @@ impl LevelImage {
             top * (1.0 - fy) + bottom * fy
         };
         // d(crop)/d(photo, y up) = factor · diag(1, −1).
-        let g = Vector2::new(at(&self.gx) * self.factor, -at(&self.gy) * self.factor);
-        Some((at(&self.normalised), g))
+        let g = if inside {
+            Vector2::new(at(&self.gx) * self.factor, -at(&self.gy) * self.factor)
+        } else {
+            Vector2::zeros()
+        };
+        Some((at(&self.values), g))
     }
 }
 
@@ -325,6 +437,13 @@ struct Samples {
     /// `expression[i][s]`.
     expression: Vec<Vec<Vector3<Real>>>,
     normals: Vec<Vector3<Real>>,
+    /// Each sample's place on the sampling grid (columns along `x`, rows along `y`, up).
+    cells: Vec<(i64, i64)>,
+    /// Each sample's neighbours on the surface for the local normalisation, with their
+    /// Gaussian weights (itself included).
+    neighbours: Vec<Vec<(usize, Real)>>,
+    /// Each sample's basis functions: control point index and value.
+    basis: Vec<Vec<(usize, Real)>>,
     /// The samples' spacing, canonical units.
     spacing: Real,
 }
@@ -338,6 +457,7 @@ impl Samples {
     ) -> Result<Self, FaceError> {
         let frame = reference.frame();
         let mut params = Vec::new();
+        let mut cells = Vec::new();
         let (x0, x1) = (frame.x[0].min(frame.x[1]), frame.x[0].max(frame.x[1]));
         let (y0, y1) = (frame.y[0].min(frame.y[1]), frame.y[0].max(frame.y[1]));
         let mut y = y0 + spacing / 2.0;
@@ -350,6 +470,7 @@ impl Samples {
                     && reference.in_face_region(q.x, q.y)
                 {
                     params.push([q.x, q.y]);
+                    cells.push((((x - x0) / spacing) as i64, ((y - y0) / spacing) as i64));
                 }
                 x += spacing;
             }
@@ -357,6 +478,13 @@ impl Samples {
         }
         let surfaces = space.surfaces();
         let sampled = surfaces.sample(&params)?;
+        let matrix = surfaces.base().basis_matrix(&params)?;
+        let basis = (0..params.len())
+            .map(|s| {
+                let (cols, vals) = matrix.row(s);
+                cols.iter().copied().zip(vals.iter().copied()).collect()
+            })
+            .collect();
         let modes = (0..params.len())
             .map(|s| sampled.modes.iter().map(|m| m[s]).collect())
             .collect();
@@ -396,6 +524,9 @@ impl Samples {
             modes,
             expression,
             normals,
+            neighbours: neighbours(&cells, spacing),
+            cells,
+            basis,
             spacing,
         })
     }
@@ -404,18 +535,57 @@ impl Samples {
         self.base.len()
     }
 
-    /// Sample `s` of photo `i` with identity `w`.
-    fn point(&self, s: usize, i: usize, w: &[Real]) -> Point3<Real> {
+    /// Sample `s` of photo `i` in `state`.
+    fn point(&self, s: usize, i: usize, state: &State) -> Point3<Real> {
         let mut p = self.base[s];
-        for (d, wk) in self.modes[s].iter().zip(w) {
+        for (d, wk) in self.modes[s].iter().zip(&state.weights) {
             p += d * *wk;
         }
         if let Some(e) = self.expression.get(i) {
             p += e[s];
         }
+        if !state.field.is_empty() {
+            p.z += self.basis[s]
+                .iter()
+                .map(|&(c, b)| b * state.field[c])
+                .sum::<Real>();
+        }
         p
     }
 }
+
+/// Each sample's neighbours within two window deviations on the sample grid (`cells`, the
+/// samples' grid coordinates), with their Gaussian weights: the window of the local
+/// normalisation, [`NORMALISATION_EYES`] eye distances (50 units each) or one and a half
+/// samples' spacings, whichever is larger.
+fn neighbours(cells: &[(i64, i64)], spacing: Real) -> Vec<Vec<(usize, Real)>> {
+    let sigma = (NORMALISATION_EYES * 50.0).max(1.5 * spacing) / spacing;
+    let reach = (2.0 * sigma).ceil() as i64;
+    let index: std::collections::HashMap<(i64, i64), usize> =
+        cells.iter().enumerate().map(|(s, &c)| (c, s)).collect();
+    cells
+        .iter()
+        .map(|&(a, b)| {
+            let mut out = Vec::new();
+            for da in -reach..=reach {
+                for db in -reach..=reach {
+                    let d2 = (da * da + db * db) as Real;
+                    if d2 > (reach * reach) as Real {
+                        continue;
+                    }
+                    if let Some(&t) = index.get(&(a + da, b + db)) {
+                        out.push((t, (-d2 / (2.0 * sigma * sigma)).exp()));
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
+/// The floor under a local deviation of intensity (intensities in `[0, 1]`): flat skin is
+/// not amplified into noise.
+const DEVIATION_FLOOR: Real = 0.02;
 
 /// What the landmarks contribute: the space's structure modes and each photo's expression.
 struct Landmarks<'a> {
@@ -434,6 +604,35 @@ struct Landmarks<'a> {
 struct State {
     weights: Vec<Real>,
     cameras: Vec<RefinedCamera>,
+    /// The control points' depth displacements (empty without [`RefineOptions::field`]).
+    field: Vec<Real>,
+}
+
+impl State {
+    /// The state moved by `step` (identity, then each camera's, then the field).
+    fn moved(&self, step: &DVector<Real>) -> State {
+        let k = self.weights.len();
+        let f = k + CAMERA * self.cameras.len();
+        State {
+            weights: self.weights.iter().zip(step.iter()).map(|(w, d)| w + d).collect(),
+            cameras: self
+                .cameras
+                .iter()
+                .enumerate()
+                .map(|(i, c)| c.moved(&step.as_slice()[k + CAMERA * i..k + CAMERA * (i + 1)]))
+                .collect(),
+            field: self
+                .field
+                .iter()
+                .zip(&step.as_slice()[f..])
+                .map(|(a, d)| a + d)
+                .collect(),
+        }
+    }
+
+    fn unknowns(&self) -> usize {
+        self.weights.len() + CAMERA * self.cameras.len() + self.field.len()
+    }
 }
 
 /// One photo's view of one sample, linearised.
@@ -441,7 +640,8 @@ struct Seen {
     photo: usize,
     weight: Real,
     value: Real,
-    /// `∂N/∂w` and `∂N/∂camera`.
+    /// `∂N/∂X`, `∂N/∂w` and `∂N/∂camera`.
+    d_point: Vector3<Real>,
     d_weights: Vec<Real>,
     d_camera: [Real; CAMERA],
 }
@@ -453,6 +653,8 @@ struct Level<'a> {
     landmarks: &'a Landmarks<'a>,
     sigma_prior: &'a [Real],
     options: &'a RefineOptions,
+    /// The control grid's rows and columns.
+    grid: (usize, usize),
 }
 
 /// Cauchy weight of a residual of scale `c`.
@@ -474,8 +676,8 @@ impl Level<'_> {
                 let mut seen = vec![0.0; n];
                 let mut places = Vec::with_capacity(n);
                 for (s, item) in seen.iter_mut().enumerate() {
-                    let x = self.samples.point(s, i, &state.weights);
-                    let Some((q, p, _)) = camera.project(&x) else {
+                    let x = self.samples.point(s, i, state);
+                    let Some(Projected { q, p, .. }) = camera.project(&x) else {
                         places.push(None);
                         continue;
                     };
@@ -513,7 +715,7 @@ impl Level<'_> {
                 for (place, w) in places.iter().zip(seen.iter_mut()) {
                     match place {
                         Some((c, z)) => match index(c) {
-                            Some(k) if *z >= front[k] - 2.0 * self.samples.spacing => {}
+                            Some(k) if *z >= front[k] - 2.0 * self.samples.spacing && image.contains(c) => {}
                             _ => *w = 0.0,
                         },
                         None => *w = 0.0,
@@ -524,9 +726,66 @@ impl Level<'_> {
             .collect()
     }
 
+    /// Per photo and sample: the local mean and inverse deviation of the photo's intensities
+    /// over the sample's neighbours on the surface that the photo sees (the normalisation
+    /// `N = (I − mean) · inverse`). A window on the surface, not in the image, covers the
+    /// same part of the face in every photo however obliquely each sees it; a window in the
+    /// image would not, and measurably biased the shape.
+    fn normalisers(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Vec<(Real, Real)>> {
+        if self.options.window == Window::Image {
+            // The images are normalised already.
+            return vec![vec![(0.0, 1.0); self.samples.len()]; state.cameras.len()];
+        }
+        state
+            .cameras
+            .par_iter()
+            .enumerate()
+            .map(|(i, camera)| {
+                let image = &self.images[i];
+                let raw: Vec<Option<Real>> = (0..self.samples.len())
+                    .map(|s| {
+                        if visibility[i][s] <= 0.0 {
+                            return None;
+                        }
+                        let x = self.samples.point(s, i, state);
+                        let projected = camera.project(&x)?;
+                        image.sample(&image.crop_of(&projected.p)).map(|(v, _)| v)
+                    })
+                    .collect();
+                self.samples
+                    .neighbours
+                    .iter()
+                    .map(|near| {
+                        let (mut total, mut sum, mut squares) = (0.0, 0.0, 0.0);
+                        for &(t, w) in near {
+                            if let Some(v) = raw[t] {
+                                total += w;
+                                sum += w * v;
+                                squares += w * v * v;
+                            }
+                        }
+                        if total <= 0.0 {
+                            return (0.0, 0.0);
+                        }
+                        let mean = sum / total;
+                        let variance = (squares / total - mean * mean).max(0.0);
+                        (mean, 1.0 / (variance + DEVIATION_FLOOR * DEVIATION_FLOOR).sqrt())
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
     /// Sample `s` seen by the photos with weights `visibility`, linearised (with derivatives
     /// when `derivatives`).
-    fn seen(&self, state: &State, visibility: &[Vec<Real>], s: usize, derivatives: bool) -> Vec<Seen> {
+    fn seen(
+        &self,
+        state: &State,
+        visibility: &[Vec<Real>],
+        normalisers: &[Vec<(Real, Real)>],
+        s: usize,
+        derivatives: bool,
+    ) -> Vec<Seen> {
         let k = state.weights.len();
         let mut out = Vec::new();
         for (i, camera) in state.cameras.iter().enumerate() {
@@ -534,39 +793,36 @@ impl Level<'_> {
             if c <= 0.0 {
                 continue;
             }
-            let x = self.samples.point(s, i, &state.weights);
-            let Some((q, p, dq)) = camera.project(&x) else {
+            let x = self.samples.point(s, i, state);
+            let Some(projected) = camera.project(&x) else {
                 continue;
             };
+            let p = projected.p;
             let image = &self.images[i];
-            let Some((value, grad)) = image.sample(&image.crop_of(&p)) else {
+            let Some((raw, raw_grad)) = image.sample(&image.crop_of(&p)) else {
                 continue;
             };
+            // The sample's normalisation is held while the geometry moves (recomputed at every
+            // state the cost is taken at).
+            let (mean, inverse) = normalisers[i][s];
+            let (value, grad) = ((raw - mean) * inverse, raw_grad * inverse);
             let mut d_weights = Vec::new();
             let mut d_camera = [0.0; CAMERA];
+            let mut d_point = Vector3::zeros();
             if derivatives {
                 // ∂N/∂q = ∇N · ∂p/∂q; ∂q/∂x = R.
-                let dn_dq = dq.transpose() * grad;
+                let dn_dq = projected.dq.transpose() * grad;
                 let dn_dx = camera.rotation.matrix().transpose() * dn_dq;
                 d_weights = (0..k).map(|m| dn_dx.dot(&self.samples.modes[s][m])).collect();
-                let rotation = q.cross(&dn_dq); // ∂q/∂δ = −[q]×: ∇·(−q × ·) = (q × ∇)
-                let f = camera.scale / (1.0 - camera.perspective * q.z);
-                let pq = Vector2::new(f * q.x, f * q.y);
-                let d_kappa = Vector2::new(q.x, q.y) * (f * q.z / (1.0 - camera.perspective * q.z));
-                d_camera = [
-                    rotation.x,
-                    rotation.y,
-                    rotation.z,
-                    grad.dot(&pq),
-                    grad.x,
-                    grad.y,
-                    grad.dot(&d_kappa),
-                ];
+                d_point = dn_dx;
+                let (rx, ry) = (projected.camera_row(0), projected.camera_row(1));
+                d_camera = std::array::from_fn(|t| grad.x * rx[t] + grad.y * ry[t]);
             }
             out.push(Seen {
                 photo: i,
                 weight: c,
                 value,
+                d_point,
                 d_weights,
                 d_camera,
             });
@@ -576,11 +832,42 @@ impl Level<'_> {
 
     /// The consistency's weighted sum of squares (robust weights as given, or plain) and
     /// the summed weights.
+    /// Per sample: the weighted RMS of the photos' normalised intensities about their mean,
+    /// NaN where fewer than two photos see it.
+    fn disagreement_map(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Real> {
+        let normalisers = self.normalisers(state, visibility);
+        (0..self.samples.len())
+            .into_par_iter()
+            .map(|s| {
+                let seen = self.seen(state, visibility, &normalisers, s, false);
+                if seen.len() < 2 {
+                    return Real::NAN;
+                }
+                let total: Real = seen.iter().map(|v| v.weight).sum();
+                let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
+                let sum: Real = seen.iter().map(|v| v.weight * (v.value - mean).powi(2)).sum();
+                (sum / total).sqrt()
+            })
+            .collect()
+    }
+
+    /// The samples' values laid on their grid, rows from the bottom; NaN where no sample is.
+    fn grid_of(&self, values: &[Real]) -> (usize, usize, Vec<Real>) {
+        let width = self.samples.cells.iter().map(|c| c.0).max().unwrap_or(0) as usize + 1;
+        let height = self.samples.cells.iter().map(|c| c.1).max().unwrap_or(0) as usize + 1;
+        let mut grid = vec![Real::NAN; width * height];
+        for (&(a, b), v) in self.samples.cells.iter().zip(values) {
+            grid[b as usize * width + a as usize] = *v;
+        }
+        (width, height, grid)
+    }
+
     fn disagreement(&self, state: &State, visibility: &[Vec<Real>]) -> (Real, Real, usize) {
+        let normalisers = self.normalisers(state, visibility);
         let per: Vec<(Real, Real, usize)> = (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
-                let seen = self.seen(state, visibility, s, false);
+                let seen = self.seen(state, visibility, &normalisers, s, false);
                 if seen.len() < 2 {
                     return (0.0, 0.0, 0);
                 }
@@ -599,11 +886,12 @@ impl Level<'_> {
 
     /// The robust consistency cost.
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
+        let normalisers = self.normalisers(state, visibility);
         let c = 2.0 * self.options.sigma;
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
-                let seen = self.seen(state, visibility, s, false);
+                let seen = self.seen(state, visibility, &normalisers, s, false);
                 if seen.len() < 2 {
                     return 0.0;
                 }
@@ -632,7 +920,9 @@ impl Level<'_> {
             .zip(self.sigma_prior)
             .map(|(w, s)| (w / s).powi(2))
             .sum();
+        let field: Real = self.field_residuals(state).iter().map(|(_, r)| r * r).sum();
         identity
+            + field
             + state
                 .cameras
                 .iter()
@@ -640,47 +930,124 @@ impl Level<'_> {
                 .sum::<Real>()
     }
 
+    /// The field's prior as residuals, each with its stencil over the control points (scaled
+    /// by the deviations): the thin plate's second differences along rows, columns and
+    /// across, and each point's ridge.
+    fn field_residuals(&self, state: &State) -> Vec<(Vec<(usize, Real)>, Real)> {
+        if state.field.is_empty() {
+            return Vec::new();
+        }
+        let (rows, cols) = self.grid;
+        let bend = 1.0 / self.options.field_bend;
+        let ridge = 1.0 / self.options.field_sigma;
+        let at = |i: usize, j: usize| i * cols + j;
+        let mut out = Vec::new();
+        let mut push = |stencil: Vec<(usize, Real)>| {
+            let r = stencil.iter().map(|&(c, v)| v * state.field[c]).sum::<Real>();
+            out.push((stencil, r));
+        };
+        for i in 0..rows {
+            for j in 0..cols {
+                push(vec![(at(i, j), ridge)]);
+                if i + 2 < rows {
+                    push(vec![
+                        (at(i, j), bend),
+                        (at(i + 1, j), -2.0 * bend),
+                        (at(i + 2, j), bend),
+                    ]);
+                }
+                if j + 2 < cols {
+                    push(vec![
+                        (at(i, j), bend),
+                        (at(i, j + 1), -2.0 * bend),
+                        (at(i, j + 2), bend),
+                    ]);
+                }
+                if i + 1 < rows && j + 1 < cols {
+                    let t = std::f64::consts::SQRT_2 * bend;
+                    push(vec![
+                        (at(i, j), t),
+                        (at(i + 1, j), -t),
+                        (at(i, j + 1), -t),
+                        (at(i + 1, j + 1), t),
+                    ]);
+                }
+            }
+        }
+        out
+    }
+
     /// The Gauss-Newton normal equations `(H, g)` at `state` (cost's half-Hessian and half-
     /// gradient).
     fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>) {
+        let normalisers = self.normalisers(state, visibility);
         let k = state.weights.len();
-        let n = k + CAMERA * state.cameras.len();
+        let n = state.unknowns();
+        let field = k + CAMERA * state.cameras.len();
         let scale = self.options.beta / (self.options.sigma * self.options.sigma);
         let c = 2.0 * self.options.sigma;
         let (mut h, mut g) = (0..self.samples.len())
             .into_par_iter()
+            .with_min_len(64)
             .fold(
                 || (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n)),
                 |(mut h, mut g), s| {
-                    let seen = self.seen(state, visibility, s, true);
+                    let seen = self.seen(state, visibility, &normalisers, s, true);
                     if seen.len() < 2 {
                         return (h, g);
                     }
                     let total: Real = seen.iter().map(|v| v.weight).sum();
                     let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
                     // The views' mean Jacobian, taken off each view's (the albedo eliminated).
-                    let mut mean_row = DVector::<Real>::zeros(n);
+                    // A row's entries: the identity, then each seeing photo's camera, then
+                    // the sample's control points.
+                    let mut mean_weights = vec![0.0; k];
+                    let mut mean_depth = 0.0;
                     for v in &seen {
                         let a = v.weight / total;
                         for m in 0..k {
-                            mean_row[m] += a * v.d_weights[m];
+                            mean_weights[m] += a * v.d_weights[m];
                         }
-                        for (t, d) in v.d_camera.iter().enumerate() {
-                            mean_row[k + CAMERA * v.photo + t] += a * d;
-                        }
+                        mean_depth += a * v.d_point.z;
                     }
+                    let basis = &self.samples.basis[s];
+                    let mut index: Vec<usize> = (0..k).collect();
                     for v in &seen {
+                        index.extend((0..CAMERA).map(|t| k + CAMERA * v.photo + t));
+                    }
+                    if !state.field.is_empty() {
+                        index.extend(basis.iter().map(|&(cp, _)| field + cp));
+                    }
+                    let mut row = vec![0.0; index.len()];
+                    for (at, v) in seen.iter().enumerate() {
                         let r = v.value - mean;
                         let weight = scale * v.weight * cauchy(r, c);
-                        let mut row = -mean_row.clone();
                         for m in 0..k {
-                            row[m] += v.d_weights[m];
+                            row[m] = v.d_weights[m] - mean_weights[m];
                         }
-                        for (t, d) in v.d_camera.iter().enumerate() {
-                            row[k + CAMERA * v.photo + t] += d;
+                        for (b, u) in seen.iter().enumerate() {
+                            let share = u.weight / total;
+                            for t in 0..CAMERA {
+                                let own = if b == at { v.d_camera[t] } else { 0.0 };
+                                row[k + CAMERA * b + t] = own - share * u.d_camera[t];
+                            }
                         }
-                        h.ger(weight, &row, &row, 1.0);
-                        g.axpy(weight * r, &row, 1.0);
+                        if !state.field.is_empty() {
+                            let base = k + CAMERA * seen.len();
+                            for (e, &(_, value)) in basis.iter().enumerate() {
+                                row[base + e] = (v.d_point.z - mean_depth) * value;
+                            }
+                        }
+                        for (a, &ia) in index.iter().enumerate() {
+                            let wa = weight * row[a];
+                            if wa == 0.0 {
+                                continue;
+                            }
+                            g[ia] += wa * r;
+                            for (b, &ib) in index.iter().enumerate() {
+                                h[(ia, ib)] += wa * row[b];
+                            }
+                        }
                     }
                     (h, g)
                 },
@@ -689,6 +1056,16 @@ impl Level<'_> {
                 || (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n)),
                 |(h1, g1), (h2, g2)| (h1 + h2, g1 + g2),
             );
+        if !state.field.is_empty() {
+            for (stencil, residual) in self.field_residuals(state) {
+                for &(a, va) in &stencil {
+                    g[field + a] += va * residual;
+                    for &(b, vb) in &stencil {
+                        h[(field + a, field + b)] += va * vb;
+                    }
+                }
+            }
+        }
         self.landmarks
             .normal_equations(state, self.options, &mut h, &mut g);
         for (m, s) in self.sigma_prior.iter().enumerate() {
@@ -697,8 +1074,16 @@ impl Level<'_> {
         }
         for (i, camera) in state.cameras.iter().enumerate() {
             let t = k + CAMERA * i + 6;
-            h[(t, t)] += 1.0 / (KAPPA_SIGMA * KAPPA_SIGMA);
-            g[t] += camera.perspective / (KAPPA_SIGMA * KAPPA_SIGMA);
+            if self.options.perspective {
+                h[(t, t)] += 1.0 / (KAPPA_SIGMA * KAPPA_SIGMA);
+                g[t] += camera.perspective / (KAPPA_SIGMA * KAPPA_SIGMA);
+            } else {
+                // κ stays 0: its row and column are the identity's, its gradient none.
+                h.row_mut(t).fill(0.0);
+                h.column_mut(t).fill(0.0);
+                h[(t, t)] = 1.0;
+                g[t] = 0.0;
+            }
         }
         (h, g)
     }
@@ -709,11 +1094,7 @@ impl Level<'_> {
 const KAPPA_SIGMA: Real = 1.0 / 300.0;
 
 impl Landmarks<'_> {
-    fn residuals(
-        &self,
-        state: &State,
-        i: usize,
-    ) -> Vec<Option<(Vector2<Real>, Vector3<Real>, Matrix2x3<Real>)>> {
+    fn residuals(&self, state: &State, i: usize) -> Vec<Option<(Vector2<Real>, Projected)>> {
         let camera = &state.cameras[i];
         (0..POINT_COUNT)
             .map(|j| {
@@ -724,13 +1105,9 @@ impl Landmarks<'_> {
                 if let Some(e) = self.expression.get(i) {
                     x += e[j];
                 }
-                camera.project(&x).map(|(q, p, dq)| {
-                    (
-                        (p - self.views[i].points[j]) / self.units[i],
-                        q,
-                        dq / self.units[i],
-                    )
-                })
+                camera
+                    .project(&x)
+                    .map(|projected| ((projected.p - self.views[i].points[j]) / self.units[i], projected))
             })
             .collect()
     }
@@ -739,7 +1116,7 @@ impl Landmarks<'_> {
         let mut sum = 0.0;
         for i in 0..state.cameras.len() {
             for (r, w) in self.residuals(state, i).iter().zip(self.point_weights) {
-                sum += w * r.map_or(1e6, |(r, _, _)| r.norm_squared());
+                sum += w * r.as_ref().map_or(1e6, |(r, _)| r.norm_squared());
             }
         }
         sum / (options.noise * options.noise)
@@ -751,7 +1128,7 @@ impl Landmarks<'_> {
         let mut sum = 0.0;
         for i in 0..state.cameras.len() {
             for (r, w) in self.residuals(state, i).iter().zip(self.point_weights) {
-                sum += w * r.map_or(0.0, |(r, _, _)| r.norm_squared());
+                sum += w * r.as_ref().map_or(0.0, |(r, _)| r.norm_squared());
             }
         }
         (sum / (total * state.cameras.len() as Real)).sqrt()
@@ -769,25 +1146,19 @@ impl Landmarks<'_> {
         let inv = 1.0 / (options.noise * options.noise);
         for (i, camera) in state.cameras.iter().enumerate() {
             for (j, r) in self.residuals(state, i).into_iter().enumerate() {
-                let Some((r, q, dq)) = r else { continue };
+                let Some((r, projected)) = r else { continue };
                 let w = self.point_weights[j] * inv;
-                let dx = dq * camera.rotation.matrix();
+                let unit = self.units[i];
+                let dx = projected.dq * camera.rotation.matrix() / unit;
                 for a in 0..2 {
                     let mut row = DVector::<Real>::zeros(n);
                     for m in 0..k {
                         row[m] = dx.row(a).dot(&self.modes[j][m].transpose());
                     }
-                    let dqa: Vector3<Real> = dq.row(a).transpose();
-                    let rotation = q.cross(&dqa);
-                    let f = camera.scale / (1.0 - camera.perspective * q.z) / self.units[i];
-                    let qa = if a == 0 { q.x } else { q.y };
                     let base = k + CAMERA * i;
-                    row[base] = rotation.x;
-                    row[base + 1] = rotation.y;
-                    row[base + 2] = rotation.z;
-                    row[base + 3] = f * qa;
-                    row[base + 4 + a] = 1.0 / self.units[i];
-                    row[base + 6] = f * qa * q.z / (1.0 - camera.perspective * q.z);
+                    for (t, d) in projected.camera_row(a).iter().enumerate() {
+                        row[base + t] = d / unit;
+                    }
                     h.ger(w, &row, &row, 1.0);
                     g.axpy(w * r[a], &row, 1.0);
                 }
@@ -847,13 +1218,24 @@ impl FaceSpace {
             cameras: fit
                 .poses
                 .iter()
-                .map(|(pose, offset)| RefinedCamera {
+                .zip(views)
+                .map(|((pose, offset), view)| RefinedCamera {
                     rotation: pose.rotation,
                     scale: pose.scale,
                     offset: offset.coords,
                     perspective: 0.0,
+                    centre: Vector2::new(
+                        (view.image.width() as Real - 1.0) / 2.0,
+                        -(view.image.height() as Real - 1.0) / 2.0,
+                    ),
                 })
                 .collect(),
+            field: if options.field {
+                let base = self.surfaces().base();
+                vec![0.0; base.rows() * base.cols()]
+            } else {
+                Vec::new()
+            },
         };
         let expressions: Vec<Vec<Real>> = if fit
             .expressions
@@ -886,7 +1268,7 @@ impl FaceSpace {
             point_weights,
             units: start.cameras.iter().map(|c| c.scale).collect(),
         };
-        // Each photo's face box: its landmarks' box grown by half its size (the forehead and
+        // Each photo's face box: its landmarks' box grown by three quarters of its size (the forehead and
         // cheeks lie beyond the points), clamped to the image.
         let boxes: Vec<[Real; 4]> = views
             .iter()
@@ -896,7 +1278,7 @@ impl FaceSpace {
                     (x0, x1) = (x0.min(p.x), x1.max(p.x));
                     (y0, y1) = (y0.min(-p.y), y1.max(-p.y));
                 }
-                let (mx, my) = (0.5 * (x1 - x0), 0.5 * (y1 - y0));
+                let (mx, my) = (0.75 * (x1 - x0), 0.75 * (y1 - y0));
                 [
                     (x0 - mx).max(0.0),
                     (y0 - my).max(0.0),
@@ -919,7 +1301,9 @@ impl FaceSpace {
                 .map(|((v, b), camera)| {
                     let eye = 50.0 * camera.scale;
                     let factor = (eye_pixels / eye).min(1.0);
-                    LevelImage::new(v.image, *b, factor, NORMALISATION_EYES * eye * factor)
+                    let window =
+                        (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
+                    LevelImage::new(v.image, *b, factor, window)
                 })
                 .collect();
             let samples = Samples::new(self, reference, &expressions, spacing)?;
@@ -929,6 +1313,7 @@ impl FaceSpace {
                 landmarks: &landmarks,
                 sigma_prior: self.sigma(),
                 options,
+                grid: (self.surfaces().base().rows(), self.surfaces().base().cols()),
             };
             let mut damping = 1e-3;
             for _ in 0..options.iterations {
@@ -947,21 +1332,7 @@ impl FaceSpace {
                         continue;
                     };
                     let step = -chol.solve(&g);
-                    let k = state.weights.len();
-                    let next = State {
-                        weights: state
-                            .weights
-                            .iter()
-                            .zip(step.iter())
-                            .map(|(w, d)| w + d)
-                            .collect(),
-                        cameras: state
-                            .cameras
-                            .iter()
-                            .enumerate()
-                            .map(|(i, c)| c.moved(&step.as_slice()[k + CAMERA * i..k + CAMERA * (i + 1)]))
-                            .collect(),
-                    };
+                    let next = state.moved(&step);
                     let next_cost = level.cost(&next, &visibility);
                     if next_cost.is_finite() && next_cost < cost {
                         let relative = (cost - next_cost) / cost.max(1e-12);
@@ -990,6 +1361,14 @@ impl FaceSpace {
             (a_sum / a_total.max(1e-12)).sqrt(),
         );
         let landmark_rms = (landmarks.rms(&start), landmarks.rms(&state));
+        let (width, height, before) = level.grid_of(&level.disagreement_map(&start, &before_visibility));
+        let (_, _, after) = level.grid_of(&level.disagreement_map(&state, &after_visibility));
+        let map = ConsistencyMap {
+            width,
+            height,
+            before,
+            after,
+        };
         let coverage = after_visibility
             .iter()
             .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
@@ -1022,11 +1401,13 @@ impl FaceSpace {
         };
         let kept = if accepted { state } else { start };
         Ok(Refinement {
+            displacement: kept.field.iter().map(|&d| Vector3::new(0.0, 0.0, d)).collect(),
             weights: kept.weights,
             cameras: kept.cameras,
             disagreement,
             landmark_rms,
             coverage,
+            map,
             samples: (level.samples.len(), seen_twice),
             iterations,
             accepted,

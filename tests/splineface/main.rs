@@ -25,5 +25,6 @@ mod photoreal;
 mod pipeline;
 mod rasl;
 mod reference;
+mod refine;
 mod render;
 mod structure;

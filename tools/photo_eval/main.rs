@@ -309,12 +309,59 @@ fn run_set(
                     .filter(|(stage, _)| stage == "refinement")
                     .map(|(_, t)| 1e3 * t)
                     .sum();
+                let yaws: Vec<String> = result
+                    .depth
+                    .photos
+                    .iter()
+                    .zip(&r.coverage)
+                    .map(|(p, c)| format!("{:+.0}°:{c:.2}", p.pose.yaw_pitch_roll_degrees()[0]))
+                    .collect();
+                let kappa: Vec<String> = r
+                    .cameras
+                    .iter()
+                    .map(|c| format!("{:.0}", 1.0 / c.perspective.max(1e-9)))
+                    .collect();
+                let landmark_only = reconstruct(
+                    &inputs,
+                    reference,
+                    &PipelineOptions {
+                        refine: None,
+                        ..*options
+                    },
+                    |_| {},
+                )
+                .ok()
+                .and_then(|y| score(&y.output_mesh(), &y.structure(), subject).ok())
+                .map_or(Real::NAN, |s| s.distance.mean);
+                let sigma = reference
+                    .face_space()
+                    .map(|space| space.sigma().to_vec())
+                    .unwrap_or_default();
+                let prior: Real = result.space.as_ref().map_or(0.0, |f| {
+                    f.weights
+                        .iter()
+                        .zip(&sigma)
+                        .map(|(w, s)| (w / s).powi(2))
+                        .sum::<Real>()
+                });
                 eprintln!(
-                    "  subject {} × {}: {:.3} mm; {} ({ms:.0} ms)",
+                    "DIAG\t{}\t{}\t{landmark_only:.4}\t{:.4}\t{:.4}\t{:.4}\t{:.3}\t{:.3}\t{prior:.2}",
+                    set.subject,
+                    result.depth.photos.len(),
+                    s.distance.mean,
+                    r.disagreement.0,
+                    r.disagreement.1,
+                    r.landmark_rms.0,
+                    r.landmark_rms.1
+                );
+                eprintln!(
+                    "  subject {} × {}: {:.3} mm; {} ({ms:.0} ms); yaw:coverage {}; distance {}",
                     set.subject,
                     set.photos.len(),
                     s.distance.mean,
-                    r.note
+                    r.note,
+                    yaws.join(" "),
+                    kappa.join(" ")
                 );
             }
             if std::env::var("DIAG").is_ok() {
@@ -1055,6 +1102,36 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             with(&|o| {
                 o.refine = Some(RefineOptions {
                     beta: 0.3,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine field",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    field: true,
+                    beta: 0.03,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine field stiff",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    field: true,
+                    field_bend: 1.0,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine surface window",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Surface,
+                    beta: 0.03,
                     ..RefineOptions::default()
                 })
             }),

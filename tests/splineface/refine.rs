@@ -1,0 +1,398 @@
+//! The dense refinement against photos rendered from a known member of the face space.
+
+use nalgebra::{Point2, Point3, Vector3};
+use splineface::Real;
+use splineface::align::{GreyImage, PhotoPoints};
+use splineface::compare::fit_similarity;
+use splineface::face::{FaceError, FaceSpace, MeshOptions, PhotoFitOptions, RefineOptions, RefineView};
+use splineface::mesh::{TextureCoordinates, TriangleMesh};
+use splineface::reference::ReferenceFace;
+use splineface::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
+use splineface::structure::contour_weighted;
+
+use crate::common::Lcg;
+
+/// A skin-like texture over `(u, v)`: smooth blotches at several scales and dark spots, so
+/// that every level of the refinement has something to match.
+fn texture(seed: u64) -> image::RgbImage {
+    let mut rng = Lcg(seed);
+    let blobs: Vec<(Real, Real, Real, Real)> = (0..400)
+        .map(|k| {
+            let size = if k < 40 {
+                0.04
+            } else if k < 160 {
+                0.015
+            } else {
+                0.006
+            };
+            (
+                rng.next(),
+                rng.next(),
+                size * rng.uniform(0.6, 1.4),
+                rng.uniform(-0.5, 0.5),
+            )
+        })
+        .collect();
+    image::RgbImage::from_fn(384, 384, |x, y| {
+        let (u, v) = (x as Real / 383.0, y as Real / 383.0);
+        let mut value = 0.6;
+        for &(cu, cv, size, amplitude) in &blobs {
+            let d2 = ((u - cu).powi(2) + (v - cv).powi(2)) / (size * size);
+            if d2 < 9.0 {
+                value += amplitude * (-0.5 * d2).exp();
+            }
+        }
+        let c = (255.0 * value.clamp(0.05, 0.95)) as u8;
+        image::Rgb([c, (0.8 * c as Real) as u8, (0.7 * c as Real) as u8])
+    })
+}
+
+struct Scene {
+    reference: &'static ReferenceFace,
+    height: Real,
+    space: FaceSpace,
+    truth: Vec<Real>,
+    images: Vec<GreyImage>,
+    views: Vec<Vec<Point2<Real>>>,
+}
+
+/// Three photos (yaw −25°, 0°, 25°, each lit from another side) of the space's member with
+/// weights `truth`, under perspective cameras 700 units away, with the member's 40 points
+/// projected and jittered by 1.5 pixels as the landmarks.
+fn scene(truth_sigmas: &[Real]) -> Scene {
+    scene_with_bump(truth_sigmas, 0.0)
+}
+
+/// The cheek bump of [`scene_with_bump`]: its height at a point of the canonical frame.
+fn bump(p: &Point3<Real>, height: Real) -> Real {
+    let d2 = (p.x - 30.0).powi(2) + (p.y + 35.0).powi(2);
+    height * (-d2 / (2.0 * 10.0 * 10.0)).exp()
+}
+
+/// As [`scene`], the member's surface raised by `height` units in a round bump on its left
+/// cheek (outside what the space can express).
+fn scene_with_bump(truth_sigmas: &[Real], height: Real) -> Scene {
+    let reference = ReferenceFace::embedded();
+    let seen = reference.as_seen_in_photos().into_owned();
+    let space = seen
+        .face_space()
+        .expect("the embedded reference has a face space");
+    let truth: Vec<Real> = (0..space.mode_count())
+        .map(|k| truth_sigmas.get(k).copied().unwrap_or(0.0) * space.sigma()[k])
+        .collect();
+    let face = space.face(&seen, &truth).unwrap();
+    let clipped = face.mesh(&MeshOptions::default()).unwrap();
+    let triangles = clipped.mesh.triangles().to_vec();
+    let positions = clipped
+        .mesh
+        .positions()
+        .iter()
+        .map(|p| p + Vector3::z() * bump(p, height))
+        .collect();
+    let mesh = TriangleMesh::new(positions, triangles.clone())
+        .unwrap()
+        .with_texture(TextureCoordinates {
+            uvs: clipped.params.clone(),
+            triangles,
+        })
+        .unwrap();
+    let map = ColourMap::new(&texture(7));
+    let structure = space.structure(&truth).unwrap();
+    let mut rng = Lcg(11);
+    let mut images = Vec::new();
+    let mut views = Vec::new();
+    for (yaw, light) in [
+        (-25.0, [0.4, 0.3, 1.0]),
+        (0.0, [-0.3, 0.5, 1.0]),
+        (25.0, [0.0, -0.2, 1.0]),
+    ] {
+        let camera = Camera::looking_at_head(
+            [yaw, 4.0, 2.0],
+            &Point3::new(0.0, -20.0, 10.0),
+            700.0,
+            1400.0,
+            (420, 520),
+        );
+        let lighting = Lighting {
+            direction: Vector3::from(light).normalize(),
+            diffuse: 0.6,
+            ambient: 0.4,
+            specular: 0.0,
+            shininess: 1.0,
+            shadow_softness: 0.0,
+        };
+        let look = PhotoLook {
+            background_top: [0.3; 3],
+            background_bottom: [0.5; 3],
+            blur: 0.5,
+            noise: 0.01,
+            seed: 3,
+            supersampling: 2,
+        };
+        let photo = render_photo(&mesh, &map, &camera, &lighting, &look).unwrap();
+        images.push(GreyImage::from_dynamic(&image::DynamicImage::ImageRgb8(photo)).unwrap());
+        let points: Vec<Point2<Real>> = structure
+            .iter()
+            .map(|p| {
+                let q = camera.project(p).unwrap();
+                Point2::new(q.x + 1.5 * rng.gaussian(), q.y + 1.5 * rng.gaussian())
+            })
+            .collect();
+        views.push(PhotoPoints::new(format!("yaw {yaw}"), points).unwrap().y_up());
+    }
+    Scene {
+        reference: &*Box::leak(Box::new(seen)),
+        height,
+        space,
+        truth,
+        images,
+        views,
+    }
+}
+
+/// RMS distance between the members `a` and `b` over the face region, after the similarity
+/// that best maps one onto the other.
+fn shape_distance(scene: &Scene, a: &[Real], b: &[Real]) -> Real {
+    distance_to_truth(scene, a, &[], b, false).0
+}
+
+/// RMS distance between the member `a` with its control points moved by `displacement` and
+/// the member `b` (with the scene's bump when `bumped`), as [`shape_distance`]: over the
+/// face region, and over the bump (where it is over a fifth of its height).
+fn distance_to_truth(
+    scene: &Scene,
+    a: &[Real],
+    displacement: &[Vector3<Real>],
+    b: &[Real],
+    bumped: bool,
+) -> (Real, Real) {
+    let mut params = Vec::new();
+    for i in 0..40 {
+        for j in 0..40 {
+            let (u, v) = ((i as Real + 0.5) / 40.0, (j as Real + 0.5) / 40.0);
+            if scene.reference.in_face_region(u, v) {
+                params.push([u, v]);
+            }
+        }
+    }
+    let points = |w: &[Real], displacement: &[Vector3<Real>]| {
+        let face = scene.space.face(scene.reference, w).unwrap();
+        let surface = face.surface();
+        let surface = if displacement.is_empty() {
+            surface.clone()
+        } else {
+            let moved = surface
+                .control_points()
+                .iter()
+                .zip(displacement)
+                .map(|(c, d)| c + d)
+                .collect();
+            surface.with_control_points(moved).unwrap()
+        };
+        surface.eval_many(&params).unwrap()
+    };
+    let pa = points(a, displacement);
+    let mut pb = points(b, &[]);
+    if bumped {
+        for p in &mut pb {
+            p.z += bump(p, scene.height);
+        }
+    }
+    let (map, _) = fit_similarity(&pa, &pb).unwrap();
+    let squares: Vec<(Real, bool)> = pa
+        .iter()
+        .zip(&pb)
+        .map(|(p, q)| ((map * p - q).norm_squared(), bump(q, 1.0) > 0.2))
+        .collect();
+    let rms = |near: bool| {
+        let kept: Vec<Real> = squares
+            .iter()
+            .filter(|(_, b)| *b || !near)
+            .map(|(d, _)| *d)
+            .collect();
+        (kept.iter().sum::<Real>() / kept.len().max(1) as Real).sqrt()
+    };
+    (rms(false), rms(true))
+}
+
+#[test]
+fn the_photos_pull_the_face_toward_the_member_they_show() {
+    let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
+    let weights = contour_weighted(0.1);
+    let fit = scene
+        .space
+        .fit_photos(
+            &scene.views,
+            &weights,
+            &PhotoFitOptions {
+                noise: 4.0,
+                expression_sigma: None,
+            },
+        )
+        .unwrap();
+    let views: Vec<RefineView> = scene
+        .images
+        .iter()
+        .zip(&scene.views)
+        .map(|(image, points)| RefineView { image, points })
+        .collect();
+    let refined = scene
+        .space
+        .refine_photos(scene.reference, &fit, &views, &weights, &RefineOptions::default())
+        .unwrap();
+    let before = shape_distance(&scene, &fit.weights, &scene.truth);
+    let after = shape_distance(&scene, &refined.weights, &scene.truth);
+    let mean = shape_distance(&scene, &vec![0.0; scene.truth.len()], &scene.truth);
+    eprintln!(
+        "shape distance: mean face {mean:.3}, landmark fit {before:.3}, refined {after:.3}; {}",
+        refined.note
+    );
+    assert!(refined.accepted, "{}", refined.note);
+    assert!(
+        refined.disagreement.1 < 0.8 * refined.disagreement.0,
+        "the photos agree better: {:?}",
+        refined.disagreement
+    );
+    assert!(
+        after < 0.7 * before,
+        "the refined face is nearer the member: {after:.3} against the landmark fit's {before:.3} (the mean face {mean:.3}) units"
+    );
+    assert_eq!(refined.coverage.len(), 3);
+    assert!(
+        refined.coverage.iter().all(|&c| c > 0.5),
+        "{:?}",
+        refined.coverage
+    );
+}
+
+#[test]
+fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
+    let scene = scene(&[1.0]);
+    let weights = contour_weighted(0.1);
+    let fit = scene
+        .space
+        .fit_photos(
+            &scene.views,
+            &weights,
+            &PhotoFitOptions {
+                noise: 4.0,
+                expression_sigma: None,
+            },
+        )
+        .unwrap();
+    let views: Vec<RefineView> = scene
+        .images
+        .iter()
+        .zip(&scene.views)
+        .map(|(image, points)| RefineView { image, points })
+        .collect();
+    let refine = |views: &[RefineView], options: &RefineOptions| {
+        scene
+            .space
+            .refine_photos(scene.reference, &fit, views, &weights, options)
+    };
+    assert!(matches!(
+        refine(&views[..2], &RefineOptions::default()),
+        Err(FaceError::Option { name: "views", .. })
+    ));
+    for (options, name) in [
+        (
+            RefineOptions {
+                levels: 0,
+                ..RefineOptions::default()
+            },
+            "levels",
+        ),
+        (
+            RefineOptions {
+                sigma: 0.0,
+                ..RefineOptions::default()
+            },
+            "sigma",
+        ),
+        (
+            RefineOptions {
+                beta: Real::NAN,
+                ..RefineOptions::default()
+            },
+            "beta",
+        ),
+        (
+            RefineOptions {
+                spacing: -1.0,
+                ..RefineOptions::default()
+            },
+            "spacing",
+        ),
+    ] {
+        match refine(&views, &options) {
+            Err(FaceError::Option { name: got, .. }) => assert_eq!(got, name),
+            other => panic!("{name}: {other:?}"),
+        }
+    }
+}
+
+#[test]
+fn the_displacement_field_follows_a_bump_the_space_cannot_express() {
+    let scene = scene_with_bump(&[1.0, -1.0, 0.5], 4.0);
+    let weights = contour_weighted(0.1);
+    let fit = scene
+        .space
+        .fit_photos(
+            &scene.views,
+            &weights,
+            &PhotoFitOptions {
+                noise: 4.0,
+                expression_sigma: None,
+            },
+        )
+        .unwrap();
+    let views: Vec<RefineView> = scene
+        .images
+        .iter()
+        .zip(&scene.views)
+        .map(|(image, points)| RefineView { image, points })
+        .collect();
+    let refine = |field| {
+        scene
+            .space
+            .refine_photos(
+                scene.reference,
+                &fit,
+                &views,
+                &weights,
+                &RefineOptions {
+                    field,
+                    ..RefineOptions::default()
+                },
+            )
+            .unwrap()
+    };
+    let (plain, with_field) = (refine(false), refine(true));
+    assert!(plain.displacement.is_empty());
+    assert!(with_field.accepted, "{}", with_field.note);
+    let plain_error = distance_to_truth(&scene, &plain.weights, &[], &scene.truth, true);
+    let field_error = distance_to_truth(
+        &scene,
+        &with_field.weights,
+        &with_field.displacement,
+        &scene.truth,
+        true,
+    );
+    let highest = with_field.displacement.iter().map(|d| d.z).fold(0.0, Real::max);
+    eprintln!(
+        "bump: weights only {plain_error:.3?}, with the field {field_error:.3?} units (face, bump; highest control point moved {highest:.2})"
+    );
+    assert!(
+        field_error.1 < 0.6 * plain_error.1,
+        "the field follows the bump: {:.3} against {:.3} units without it",
+        field_error.1,
+        plain_error.1
+    );
+    assert!(
+        field_error.0 < plain_error.0,
+        "and does not spoil the rest of the face: {:.3} against {:.3} units",
+        field_error.0,
+        plain_error.0
+    );
+}
