@@ -106,7 +106,8 @@ pub struct PipelineOptions {
     /// kept ([`PipelineError::ExpressionOf`] otherwise).
     pub expression_of: Option<usize>,
     /// Refine the face-space fit with the photos' pixels ([`crate::face::FaceSpace::refine_photos`]):
-    /// with images and [`Shape::Space`] only; `None` keeps the landmark fit.
+    /// with images and [`Shape::Space`] only; `None` keeps the landmark fit. On by default
+    /// (measured: [`RefineOptions::default`]).
     pub refine: Option<RefineOptions>,
 }
 
@@ -234,7 +235,7 @@ impl Default for PipelineOptions {
             structure_weight: StructureWeight::Auto,
             shape: Shape::default(),
             expression_of: None,
-            refine: None,
+            refine: Some(RefineOptions::default()),
         }
     }
 }

@@ -1087,12 +1087,12 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 }),
             )
         },
-        method("refine", with(&|o| o.refine = Some(RefineOptions::default()))),
+        method("landmarks only", with(&|o| o.refine = None)),
         method(
-            "refine β0.03",
+            "refine β0.1",
             with(&|o| {
                 o.refine = Some(RefineOptions {
-                    beta: 0.03,
+                    beta: 0.1,
                     ..RefineOptions::default()
                 })
             }),
@@ -1111,17 +1111,6 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             with(&|o| {
                 o.refine = Some(RefineOptions {
                     field: true,
-                    beta: 0.03,
-                    ..RefineOptions::default()
-                })
-            }),
-        ),
-        method(
-            "refine field stiff",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    field: true,
-                    field_bend: 1.0,
                     ..RefineOptions::default()
                 })
             }),
@@ -1131,7 +1120,6 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             with(&|o| {
                 o.refine = Some(RefineOptions {
                     window: splineface::face::Window::Surface,
-                    beta: 0.03,
                     ..RefineOptions::default()
                 })
             }),
