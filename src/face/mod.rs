@@ -23,7 +23,7 @@
 //! Which is the default is set by measurement on ICT-FaceKit identities
 //! (`cargo run --release --example surface_eval`): see [`Deformation::default`].
 
-mod refine;
+pub mod refine;
 mod space;
 mod tessellate;
 

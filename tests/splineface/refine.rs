@@ -4,7 +4,9 @@ use nalgebra::{Point2, Point3, Vector3};
 use splineface::Real;
 use splineface::align::{GreyImage, PhotoPoints};
 use splineface::compare::fit_similarity;
-use splineface::face::{FaceError, FaceSpace, MeshOptions, PhotoFitOptions, RefineOptions, RefineView};
+use splineface::face::{
+    FaceError, FaceSpace, MeshOptions, PhotoFitOptions, PhotoSpaceFit, RefineOptions, RefineView,
+};
 use splineface::mesh::{TextureCoordinates, TriangleMesh};
 use splineface::reference::ReferenceFace;
 use splineface::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
@@ -215,9 +217,9 @@ fn distance_to_truth(
     (rms(false), rms(true))
 }
 
-#[test]
-fn the_photos_pull_the_face_toward_the_member_they_show() {
-    let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
+/// The landmark fit the refinement starts from (the pipeline's point weights and noise, every
+/// photo neutral), and the photos as the refinement takes them.
+fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>>) {
     let weights = contour_weighted(0.1);
     let fit = scene
         .space
@@ -230,12 +232,19 @@ fn the_photos_pull_the_face_toward_the_member_they_show() {
             },
         )
         .unwrap();
-    let views: Vec<RefineView> = scene
+    let views = scene
         .images
         .iter()
         .zip(&scene.views)
         .map(|(image, points)| RefineView { image, points })
         .collect();
+    (weights, fit, views)
+}
+
+#[test]
+fn the_photos_pull_the_face_toward_the_member_they_show() {
+    let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
+    let (weights, fit, views) = landmark_fit(&scene);
     let refined = scene
         .space
         .refine_photos(scene.reference, &fit, &views, &weights, &RefineOptions::default())
@@ -268,24 +277,7 @@ fn the_photos_pull_the_face_toward_the_member_they_show() {
 #[test]
 fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
     let scene = scene(&[1.0]);
-    let weights = contour_weighted(0.1);
-    let fit = scene
-        .space
-        .fit_photos(
-            &scene.views,
-            &weights,
-            &PhotoFitOptions {
-                noise: 4.0,
-                expression_sigma: None,
-            },
-        )
-        .unwrap();
-    let views: Vec<RefineView> = scene
-        .images
-        .iter()
-        .zip(&scene.views)
-        .map(|(image, points)| RefineView { image, points })
-        .collect();
+    let (weights, fit, views) = landmark_fit(&scene);
     let refine = |views: &[RefineView], options: &RefineOptions| {
         scene
             .space
@@ -335,24 +327,7 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
 #[test]
 fn the_displacement_field_follows_a_bump_the_space_cannot_express() {
     let scene = scene_with_bump(&[1.0, -1.0, 0.5], 4.0);
-    let weights = contour_weighted(0.1);
-    let fit = scene
-        .space
-        .fit_photos(
-            &scene.views,
-            &weights,
-            &PhotoFitOptions {
-                noise: 4.0,
-                expression_sigma: None,
-            },
-        )
-        .unwrap();
-    let views: Vec<RefineView> = scene
-        .images
-        .iter()
-        .zip(&scene.views)
-        .map(|(image, points)| RefineView { image, points })
-        .collect();
+    let (weights, fit, views) = landmark_fit(&scene);
     let refine = |field| {
         scene
             .space
