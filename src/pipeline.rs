@@ -562,7 +562,7 @@ pub fn reconstruct(
             if let Some(r) = &refinement {
                 shape.push_str(&format!("; {}", r.note));
                 if r.accepted && !r.displacement.is_empty() {
-                    face = displaced(reference, &face, &r.displacement)?;
+                    face = face.displaced(&r.displacement)?;
                     shape.push_str(", with a displacement of the control grid");
                 }
             }
@@ -649,26 +649,6 @@ fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, String>
         }
     }
     crate::render::heatmap_png(&values, width, height, 1.0, "").map_err(|e| e.to_string())
-}
-
-/// `face` with every control point moved by `displacement` (row-major), same structure.
-fn displaced(
-    reference: &ReferenceFace,
-    face: &FaceSurface,
-    displacement: &[nalgebra::Vector3<Real>],
-) -> Result<FaceSurface, FaceError> {
-    let surface = face.surface();
-    let controls = surface
-        .control_points()
-        .iter()
-        .zip(displacement)
-        .map(|(c, d)| c + d)
-        .collect();
-    FaceSurface::from_surface(
-        reference,
-        surface.with_control_points(controls)?,
-        face.structure().to_vec(),
-    )
 }
 
 fn encode_error(file: &str) -> impl Fn(String) -> PipelineError + '_ {

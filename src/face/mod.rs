@@ -376,6 +376,48 @@ impl FaceSurface {
         &self.report
     }
 
+    /// The surface with every control point moved by `displacement` (row-major), the same
+    /// structure; its report's `point_rms` says how far the moved surface passes from it (as
+    /// [`crate::face::FaceSpace::refine_photos`]'s displacement field is applied).
+    ///
+    /// # Errors
+    /// [`FaceError::Option`] unless there is one displacement per control point;
+    /// [`FaceError::Kernel`] for one that is not finite.
+    pub fn displaced(&self, displacement: &[nalgebra::Vector3<Real>]) -> Result<Self, FaceError> {
+        if displacement.len() != self.surface.control_points().len() {
+            return Err(FaceError::Option {
+                name: "displacement",
+                value: displacement.len().to_string(),
+                expected: "one per control point",
+            });
+        }
+        let controls = self
+            .surface
+            .control_points()
+            .iter()
+            .zip(displacement)
+            .map(|(c, d)| c + d)
+            .collect();
+        let surface = self.surface.with_control_points(controls)?;
+        let flat: Vec<[Real; 2]> = self.params.iter().map(|p| [p.x, p.y]).collect();
+        let on_surface = surface.eval_many(&flat)?;
+        let point_rms = (on_surface
+            .iter()
+            .zip(&self.structure)
+            .map(|(a, b)| (a - b).norm_squared())
+            .sum::<Real>()
+            / self.structure.len().max(1) as Real)
+            .sqrt();
+        Ok(FaceSurface {
+            surface,
+            report: DeformationReport {
+                point_rms,
+                ..self.report
+            },
+            ..self.clone()
+        })
+    }
+
     /// The surface mapped by `transform` (for units and views), with its structure.
     pub fn transformed(&self, transform: &Affine3<Real>) -> Self {
         FaceSurface {

@@ -179,18 +179,12 @@ fn distance_to_truth(
     }
     let points = |w: &[Real], displacement: &[Vector3<Real>]| {
         let face = scene.space.face(scene.reference, w).unwrap();
-        let surface = face.surface();
-        let surface = if displacement.is_empty() {
-            surface.clone()
+        let face = if displacement.is_empty() {
+            face
         } else {
-            let moved = surface
-                .control_points()
-                .iter()
-                .zip(displacement)
-                .map(|(c, d)| c + d)
-                .collect();
-            surface.with_control_points(moved).unwrap()
+            face.displaced(displacement).unwrap()
         };
+        let surface = face.surface();
         surface.eval_many(&params).unwrap()
     };
     let pa = points(a, displacement);
