@@ -181,18 +181,7 @@ impl GreyImage {
 
     /// Central-difference gradients (`∂/∂x`, `∂/∂y`), one-sided at the borders.
     pub fn gradients(&self) -> (Vec<f32>, Vec<f32>) {
-        let (w, h) = (self.width, self.height);
-        let mut gx = vec![0.0; w * h];
-        let mut gy = vec![0.0; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
-                gx[y * w + x] = (self.get(x1, y) - self.get(x0, y)) / (x1 - x0) as f32;
-                gy[y * w + x] = (self.get(x, y1) - self.get(x, y0)) / (y1 - y0) as f32;
-            }
-        }
-        (gx, gy)
+        central_differences(&self.data, self.width, self.height)
     }
 
     /// Bilinear interpolation of `values` (laid out like this image) at `(x, y)` in pixel
@@ -208,6 +197,23 @@ impl GreyImage {
         let bottom = values[y1 * w + x0] * (1.0 - fx) + values[y1 * w + x1] * fx;
         top * (1.0 - fy) + bottom * fy
     }
+}
+
+/// Central-difference gradients (`∂/∂x`, `∂/∂y`) of `values` (`width × height`, row-major),
+/// one-sided at the borders (zero along a side of one pixel).
+pub(crate) fn central_differences(values: &[f32], width: usize, height: usize) -> (Vec<f32>, Vec<f32>) {
+    let (w, h) = (width, height);
+    let mut gx = vec![0.0; w * h];
+    let mut gy = vec![0.0; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let (x0, x1) = (x.saturating_sub(1), (x + 1).min(w - 1));
+            let (y0, y1) = (y.saturating_sub(1), (y + 1).min(h - 1));
+            gx[y * w + x] = (values[y * w + x1] - values[y * w + x0]) / (x1 - x0).max(1) as f32;
+            gy[y * w + x] = (values[y1 * w + x] - values[y0 * w + x]) / (y1 - y0).max(1) as f32;
+        }
+    }
+    (gx, gy)
 }
 
 /// Reads and decodes a photo in any format the `image` crate has enabled, within limits: the

@@ -21,6 +21,7 @@ mod rasl;
 pub use agreement::{
     AGREEMENT_FLOOR, AGREEMENT_RATIO, PATCH_SIDE, PATCH_STEP, disagreeing_photos, landmark_agreement,
 };
+pub(crate) use image::central_differences;
 pub use image::{
     GreyImage, MAX_PIXELS, MIN_SIDE, PhotoError, PhotoProblem, decode_photo, decode_photo_bytes,
 };

@@ -15,22 +15,25 @@
 //!               + Σₖ wₖ² / σₖ²  +  Σᵢ κᵢ² / σ_κ²                               priors
 //! ```
 //!
-//! * `πᵢ` is photo `i`'s camera: `x = o + s · (P R X) / (1 − κ (R X)_z)`, the scaled
-//!   orthographic camera of the landmark fit with a perspective term `κ = 1/d` (`d` the
-//!   camera's distance, canonical units): near cameras magnify the nose.
-//! * `Nᵢ` is photo `i`'s grey intensity **normalised on the surface**: at each sample, the
-//!   photo's intensities over the sample's neighbours on the surface (a Gaussian window of
-//!   [`NORMALISATION_EYES`] eye distances) give a local mean and deviation, and `N = (I −
-//!   mean) / deviation`. Shading that varies smoothly across the face (a light from another
-//!   side in each photo) cancels; texture and edges (eyes, brows, nostrils, lips, skin
-//!   detail) remain. This is the choice the method leaves open (normalised cross-correlation
-//!   of patches, or colour after a per-photo gain and bias): it is the cross-correlation's
-//!   per-sample form, and a per-photo gain and bias cannot follow a light that moves between
-//!   photos. The window lies on the surface, not in the image, so that it covers the same part
-//!   of the face in every photo however obliquely each sees it: measured on photos rendered
-//!   from a member of the space (`tests/splineface/refine.rs`), a window in the image made
-//!   the shape drift away from the truth as the consistency's weight grew. The normalisation
-//!   is held fixed while a step is solved for and recomputed wherever the cost is taken.
+//! * `πᵢ` is photo `i`'s camera ([`RefinedCamera`]): a pinhole camera with its principal
+//!   point at the image's centre, `x = c + (o − c + s · P R X) / (1 − κ (R X)_z)`, the landmark
+//!   fit's scaled orthographic camera with a perspective term `κ = 1/d` (`d` the camera's
+//!   distance, canonical units): near cameras magnify the nose.
+//! * `Nᵢ` is photo `i`'s grey intensity, **locally normalised**: its local mean removed and
+//!   divided by its local deviation over a Gaussian window of [`NORMALISATION_EYES`] eye
+//!   distances. Shading that varies smoothly across the face (a light from another side in
+//!   each photo) cancels; texture and edges (eyes, brows, nostrils, lips, skin detail) remain.
+//!   This is the choice the method leaves open (normalised cross-correlation of patches, or
+//!   colour after a per-photo gain and bias): it is the cross-correlation's per-pixel form,
+//!   and a per-photo gain and bias cannot follow a light that moves between photos. The
+//!   window lies in each photo's image by default ([`Window::Image`]) or on the surface
+//!   ([`Window::Surface`], about each sample over the samples the photo sees, held fixed
+//!   while a step is solved for and recomputed wherever the cost is taken). On the surface
+//!   it covers the same part of the face in every photo however obliquely each sees it, and
+//!   on photos rendered from a member of the space (`tests/splineface/refine.rs`) the image
+//!   window made the shape drift from the truth as the consistency's weight grew; on the
+//!   photo-realistic evaluation the image window is nevertheless the better
+//!   ([`RefineOptions::default`]).
 //! * `μₛ` is the weighted mean over the views that see sample `s` (the unknown albedo,
 //!   eliminated exactly: the Jacobian of each residual has the views' mean Jacobian taken
 //!   off); `cᵢₛ` is how squarely photo `i` sees the sample (0 when it faces away or lies behind
@@ -48,18 +51,17 @@
 //!
 //! The result is kept only when the photos agree better on the refined face than on the
 //! landmark fit's (their disagreement at the finest level falls by
-//! [`RefineOptions::min_gain`] or more) and the landmarks still fit (their RMS grows by at
-//! most [`RefineOptions::landmark_slack`] units); otherwise the landmark result stands and
-//! [`Refinement::accepted`] says why not.
+//! [`RefineOptions::min_gain`] or more) and, when asked, the landmarks still fit (their RMS
+//! grows by at most [`RefineOptions::landmark_slack`] units; not checked by default);
+//! otherwise the landmark result stands and [`Refinement::accepted`] says why not.
 
 use nalgebra::{DMatrix, DVector, Matrix2x3, Point2, Point3, Rotation3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use super::FaceError;
-use super::space::{FaceSpace, PhotoSpaceFit};
+use super::space::{FaceSpace, PhotoSpaceFit, add_weighted};
 use crate::Real;
 use crate::align::GreyImage;
-use crate::bspline::SurfaceSpace;
 use crate::reference::ReferenceFace;
 use crate::structure::POINT_COUNT;
 
@@ -102,7 +104,8 @@ pub struct RefineOptions {
     /// The smallest relative fall of the disagreement for which the refinement is kept.
     pub min_gain: Real,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
-    /// kept.
+    /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
+    /// that helped and on those that did not alike.
     pub landmark_slack: Real,
 }
 
@@ -367,18 +370,7 @@ impl LevelImage {
                     .collect()
             }
         };
-        let mut gx = vec![0.0f32; width * height];
-        let mut gy = vec![0.0f32; width * height];
-        for r in 0..height {
-            for c in 0..width {
-                let (c0, c1) = (c.saturating_sub(1), (c + 1).min(width - 1));
-                let (r0, r1) = (r.saturating_sub(1), (r + 1).min(height - 1));
-                gx[r * width + c] =
-                    (values[r * width + c1] - values[r * width + c0]) / (c1 - c0).max(1) as f32;
-                gy[r * width + c] =
-                    (values[r1 * width + c] - values[r0 * width + c]) / (r1 - r0).max(1) as f32;
-            }
-        }
+        let (gx, gy) = crate::align::central_differences(&values, width, height);
         LevelImage {
             width,
             height,
@@ -486,10 +478,11 @@ struct Samples {
 }
 
 impl Samples {
+    /// `expressions[i]`: photo `i`'s expression as a displacement of every control point.
     fn new(
         space: &FaceSpace,
         reference: &ReferenceFace,
-        expressions: &[Vec<Real>],
+        expressions: &[Vec<Vector3<Real>>],
         spacing: Real,
     ) -> Result<Self, FaceError> {
         let frame = reference.frame();
@@ -516,7 +509,7 @@ impl Samples {
         let surfaces = space.surfaces();
         let sampled = surfaces.sample(&params)?;
         let matrix = surfaces.base().basis_matrix(&params)?;
-        let basis = (0..params.len())
+        let basis: Vec<Vec<(usize, Real)>> = (0..params.len())
             .map(|s| {
                 let (cols, vals) = matrix.row(s);
                 cols.iter().copied().zip(vals.iter().copied()).collect()
@@ -525,20 +518,13 @@ impl Samples {
         let modes = (0..params.len())
             .map(|s| sampled.modes.iter().map(|m| m[s]).collect())
             .collect();
-        let expression_space = SurfaceSpace::new(surfaces.base().clone(), space.expressions().grid.clone())?;
-        let expression_samples = expression_space.sample(&params)?;
         let expression = expressions
             .iter()
-            .map(|e| {
-                let mut d = vec![Vector3::zeros(); params.len()];
-                for (weight, mode) in e.iter().zip(&expression_samples.modes) {
-                    if *weight != 0.0 {
-                        for (d, m) in d.iter_mut().zip(mode) {
-                            *d += m * *weight;
-                        }
-                    }
-                }
-                d
+            .map(|grid| {
+                basis
+                    .iter()
+                    .map(|row| row.iter().map(|&(c, b)| grid[c] * b).sum())
+                    .collect()
             })
             .collect();
         let base_surface = surfaces.base();
@@ -692,6 +678,17 @@ struct Level<'a> {
     options: &'a RefineOptions,
     /// The control grid's rows and columns.
     grid: (usize, usize),
+}
+
+/// The summed weight of the photos that see a sample and the weighted mean of their
+/// normalised intensities there (the eliminated albedo); `None` for fewer than two photos.
+fn agreement(seen: &[Seen]) -> Option<(Real, Real)> {
+    if seen.len() < 2 {
+        return None;
+    }
+    let total: Real = seen.iter().map(|v| v.weight).sum();
+    let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
+    Some((total, mean))
 }
 
 /// Cauchy weight of a residual of scale `c`.
@@ -867,23 +864,20 @@ impl Level<'_> {
         out
     }
 
-    /// The consistency's weighted sum of squares (robust weights as given, or plain) and
-    /// the summed weights.
-    /// Per sample: the weighted RMS of the photos' normalised intensities about their mean,
-    /// NaN where fewer than two photos see it.
-    fn disagreement_map(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Real> {
+    /// Per sample: the weighted sum of squares of the photos' normalised intensities about
+    /// their mean, and the summed weights; `None` where fewer than two photos see it.
+    fn disagreement(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Option<(Real, Real)>> {
         let normalisers = self.normalisers(state, visibility);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
                 let seen = self.seen(state, visibility, &normalisers, s, false);
-                if seen.len() < 2 {
-                    return Real::NAN;
-                }
-                let total: Real = seen.iter().map(|v| v.weight).sum();
-                let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
-                let sum: Real = seen.iter().map(|v| v.weight * (v.value - mean).powi(2)).sum();
-                (sum / total).sqrt()
+                let (total, mean) = agreement(&seen)?;
+                let sum = seen
+                    .iter()
+                    .map(|v| v.weight * (v.value - mean).powi(2))
+                    .sum::<Real>();
+                Some((sum, total))
             })
             .collect()
     }
@@ -899,28 +893,6 @@ impl Level<'_> {
         (width, height, grid)
     }
 
-    fn disagreement(&self, state: &State, visibility: &[Vec<Real>]) -> (Real, Real, usize) {
-        let normalisers = self.normalisers(state, visibility);
-        let per: Vec<(Real, Real, usize)> = (0..self.samples.len())
-            .into_par_iter()
-            .map(|s| {
-                let seen = self.seen(state, visibility, &normalisers, s, false);
-                if seen.len() < 2 {
-                    return (0.0, 0.0, 0);
-                }
-                let total: Real = seen.iter().map(|v| v.weight).sum();
-                let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
-                let sum = seen
-                    .iter()
-                    .map(|v| v.weight * (v.value - mean).powi(2))
-                    .sum::<Real>();
-                (sum, total, 1)
-            })
-            .collect();
-        per.iter()
-            .fold((0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2))
-    }
-
     /// The robust consistency cost.
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
         let normalisers = self.normalisers(state, visibility);
@@ -929,11 +901,9 @@ impl Level<'_> {
             .into_par_iter()
             .map(|s| {
                 let seen = self.seen(state, visibility, &normalisers, s, false);
-                if seen.len() < 2 {
+                let Some((_, mean)) = agreement(&seen) else {
                     return 0.0;
-                }
-                let total: Real = seen.iter().map(|v| v.weight).sum();
-                let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
+                };
                 seen.iter()
                     .map(|v| v.weight * c * c * (1.0 + ((v.value - mean) / c).powi(2)).ln())
                     .sum::<Real>()
@@ -1038,11 +1008,9 @@ impl Level<'_> {
                     (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n)),
                     |(mut h, mut g), &s| {
                         let seen = self.seen(state, visibility, &normalisers, s, true);
-                        if seen.len() < 2 {
+                        let Some((total, mean)) = agreement(&seen) else {
                             return (h, g);
-                        }
-                        let total: Real = seen.iter().map(|v| v.weight).sum();
-                        let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
+                        };
                         // The views' mean Jacobian, taken off each view's (the albedo eliminated).
                         // A row's entries: the identity, then each seeing photo's camera, then
                         // the sample's control points.
@@ -1279,39 +1247,41 @@ impl FaceSpace {
                 })
                 .collect(),
             field: if options.field {
-                let base = self.surfaces().base();
-                vec![0.0; base.rows() * base.cols()]
+                vec![0.0; self.surfaces().base().rows() * self.surfaces().base().cols()]
             } else {
                 Vec::new()
             },
         };
-        let expressions: Vec<Vec<Real>> = if fit
+        // Each photo's expression (held at the landmark fit's) as displacements of the control
+        // grid and of the structure; none when the fit had no expressions.
+        let expressions: &[Vec<Real>] = if fit
             .expressions
             .iter()
             .all(|e| e.len() == self.expressions().len())
         {
-            fit.expressions.clone()
+            &fit.expressions
         } else {
-            vec![Vec::new(); views.len()]
+            &[]
         };
+        let displacement = |modes: &[Vec<Vector3<Real>>], len: usize| -> Vec<Vec<Vector3<Real>>> {
+            expressions
+                .iter()
+                .map(|e| {
+                    let mut d = vec![Vector3::zeros(); len];
+                    add_weighted(&mut d, modes, e);
+                    d
+                })
+                .collect()
+        };
+        let base = self.surfaces().base();
+        let expression_grids = displacement(&self.expressions().grid, base.rows() * base.cols());
         let structure = self.structure_samples();
         let landmarks = Landmarks {
             base: structure.base.clone(),
             modes: (0..POINT_COUNT)
                 .map(|j| structure.modes.iter().map(|m| m[j]).collect())
                 .collect(),
-            expression: expressions
-                .iter()
-                .map(|e| {
-                    let mut d = vec![Vector3::zeros(); POINT_COUNT];
-                    for (w, mode) in e.iter().zip(&self.expressions().structure) {
-                        for (d, m) in d.iter_mut().zip(mode) {
-                            *d += m * *w;
-                        }
-                    }
-                    d
-                })
-                .collect(),
+            expression: displacement(&self.expressions().structure, POINT_COUNT),
             views,
             point_weights,
             units: start.cameras.iter().map(|c| c.scale).collect(),
@@ -1354,7 +1324,7 @@ impl FaceSpace {
                     LevelImage::new(v.image, *b, factor, window)
                 })
                 .collect();
-            let samples = Samples::new(self, reference, &expressions, spacing)?;
+            let samples = Samples::new(self, reference, &expression_grids, spacing)?;
             let level = Level {
                 images,
                 samples,
@@ -1402,15 +1372,27 @@ impl FaceSpace {
         let level = finest.expect("at least one level");
         let before_visibility = level.visibility(&start);
         let after_visibility = level.visibility(&state);
-        let (b_sum, b_total, _) = level.disagreement(&start, &before_visibility);
-        let (a_sum, a_total, seen_twice) = level.disagreement(&state, &after_visibility);
-        let disagreement = (
-            (b_sum / b_total.max(1e-12)).sqrt(),
-            (a_sum / a_total.max(1e-12)).sqrt(),
-        );
+        let before = level.disagreement(&start, &before_visibility);
+        let after = level.disagreement(&state, &after_visibility);
+        // Over the face: the weighted RMS over every sample two photos see, and their count.
+        let overall = |per: &[Option<(Real, Real)>]| {
+            let (sum, total, count) = per
+                .iter()
+                .flatten()
+                .fold((0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + 1));
+            ((sum / total.max(1e-12)).sqrt(), count)
+        };
+        // Per sample: the weighted RMS, NaN where fewer than two photos see it.
+        let rms = |per: &[Option<(Real, Real)>]| -> Vec<Real> {
+            per.iter()
+                .map(|p| p.map_or(Real::NAN, |(sum, total)| (sum / total).sqrt()))
+                .collect()
+        };
+        let ((before_rms, _), (after_rms, seen_twice)) = (overall(&before), overall(&after));
+        let disagreement = (before_rms, after_rms);
         let landmark_rms = (landmarks.rms(&start), landmarks.rms(&state));
-        let (width, height, before) = level.grid_of(&level.disagreement_map(&start, &before_visibility));
-        let (_, _, after) = level.grid_of(&level.disagreement_map(&state, &after_visibility));
+        let (width, height, before) = level.grid_of(&rms(&before));
+        let (_, _, after) = level.grid_of(&rms(&after));
         let map = ConsistencyMap {
             width,
             height,

@@ -261,11 +261,7 @@ impl FaceSpace {
     ) -> Result<FaceSurface, FaceError> {
         let structure = self.structure_with_expression(weights, expression)?;
         let mut controls = self.surfaces.control_points(weights)?;
-        for (e, grid) in expression.iter().zip(&self.expressions.grid) {
-            for (c, d) in controls.iter_mut().zip(grid) {
-                *c += d * *e;
-            }
-        }
+        add_weighted(&mut controls, &self.expressions.grid, expression);
         let base = self.surfaces.base();
         let surface = BSplineSurface::new(
             base.knots_u().clone(),
@@ -297,11 +293,7 @@ impl FaceSpace {
                 expected: "one per expression mode, each in [0, 1]",
             });
         }
-        for (e, mode) in expression.iter().zip(&self.expressions.structure) {
-            for (p, d) in points.iter_mut().zip(mode) {
-                *p += d * *e;
-            }
-        }
+        add_weighted(&mut points, &self.expressions.structure, expression);
         Ok(points)
     }
 
@@ -579,6 +571,20 @@ impl<'a> Carrier<'a> {
             structures.push(moved.into_iter().map(|p| p.coords).collect());
         }
         Ok((grids, structures))
+    }
+}
+
+/// `target += Σₖ weights[k] · modes[k]`, mode by mode (a member's expression, on control
+/// points, structure points or displacements).
+pub(crate) fn add_weighted<T: std::ops::AddAssign<Vector3<Real>>>(
+    target: &mut [T],
+    modes: &[Vec<Vector3<Real>>],
+    weights: &[Real],
+) {
+    for (weight, mode) in weights.iter().zip(modes) {
+        for (t, d) in target.iter_mut().zip(mode) {
+            *t += d * *weight;
+        }
     }
 }
 
