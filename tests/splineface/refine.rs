@@ -5,7 +5,7 @@ use splineface::Real;
 use splineface::align::{GreyImage, PhotoPoints};
 use splineface::compare::fit_similarity;
 use splineface::face::{
-    FaceError, FaceSpace, MeshOptions, PhotoFitOptions, PhotoSpaceFit, RefineOptions, RefineView,
+    FaceError, FaceSpace, MeshOptions, PhotoFitOptions, PhotoSpaceFit, RefineOptions, RefineView, Window,
 };
 use splineface::mesh::{TextureCoordinates, TriangleMesh};
 use splineface::reference::ReferenceFace;
@@ -235,37 +235,46 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
     (weights, fit, views)
 }
 
+/// Both ways of making the photos comparable (the window in the image, and the shading
+/// divided out before a window on the surface) pull the face toward the member the photos
+/// show, each photo lit from another side.
 #[test]
 fn the_photos_pull_the_face_toward_the_member_they_show() {
     let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
     let (weights, fit, views) = landmark_fit(&scene);
-    let refined = scene
-        .space
-        .refine_photos(scene.reference, &fit, &views, &weights, &RefineOptions::default())
-        .unwrap();
     let before = shape_distance(&scene, &fit.weights, &scene.truth);
-    let after = shape_distance(&scene, &refined.weights, &scene.truth);
     let mean = shape_distance(&scene, &vec![0.0; scene.truth.len()], &scene.truth);
-    eprintln!(
-        "shape distance: mean face {mean:.3}, landmark fit {before:.3}, refined {after:.3}; {}",
-        refined.note
-    );
-    assert!(refined.accepted, "{}", refined.note);
-    assert!(
-        refined.disagreement.1 < 0.8 * refined.disagreement.0,
-        "the photos agree better: {:?}",
-        refined.disagreement
-    );
-    assert!(
-        after < 0.7 * before,
-        "the refined face is nearer the member: {after:.3} against the landmark fit's {before:.3} (the mean face {mean:.3}) units"
-    );
-    assert_eq!(refined.coverage.len(), 3);
-    assert!(
-        refined.coverage.iter().all(|&c| c > 0.5),
-        "{:?}",
-        refined.coverage
-    );
+    for window in [Window::Image, Window::Shaded] {
+        let options = RefineOptions {
+            window,
+            ..RefineOptions::default()
+        };
+        let refined = scene
+            .space
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
+            .unwrap();
+        let after = shape_distance(&scene, &refined.weights, &scene.truth);
+        eprintln!(
+            "{window:?}: shape distance: mean face {mean:.3}, landmark fit {before:.3}, refined {after:.3}; {}",
+            refined.note
+        );
+        assert!(refined.accepted, "{window:?}: {}", refined.note);
+        assert!(
+            refined.disagreement.1 < 0.8 * refined.disagreement.0,
+            "{window:?}: the photos agree better: {:?}",
+            refined.disagreement
+        );
+        assert!(
+            after < 0.7 * before,
+            "{window:?}: the refined face is nearer the member: {after:.3} against the landmark fit's {before:.3} (the mean face {mean:.3}) units"
+        );
+        assert_eq!(refined.coverage.len(), 3);
+        assert!(
+            refined.coverage.iter().all(|&c| c > 0.5),
+            "{:?}",
+            refined.coverage
+        );
+    }
 }
 
 #[test]
@@ -363,5 +372,47 @@ fn the_displacement_field_follows_a_bump_the_space_cannot_express() {
         "and does not spoil the rest of the face: {:.3} against {:.3} units",
         field_error.0,
         plain_error.0
+    );
+}
+
+/// A fourth photo that disagrees with the others for reasons other than shape (the frontal
+/// photo with its intensities inverted, as under another kind of light or make-up) pulls the
+/// refinement off the face the three good photos give; weighing each photo by its agreement
+/// with the others (`RefineOptions::photo_weights`) takes back most of the difference.
+#[test]
+fn a_photo_that_disagrees_with_the_others_counts_less() {
+    let mut scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
+    let refine = |scene: &Scene, photo_weights: bool| {
+        let (weights, fit, views) = landmark_fit(scene);
+        let options = RefineOptions {
+            photo_weights,
+            min_gain: Real::NEG_INFINITY,
+            ..RefineOptions::default()
+        };
+        let refined = scene
+            .space
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
+            .unwrap();
+        shape_distance(scene, &refined.weights, &scene.truth)
+    };
+    let good = refine(&scene, false);
+    let frontal = &scene.images[1];
+    let inverted = GreyImage::new(
+        frontal.width(),
+        frontal.height(),
+        frontal.data().iter().map(|v| 1.0 - v).collect(),
+    )
+    .unwrap();
+    scene.images.push(inverted);
+    scene.views.push(scene.views[1].clone());
+    let (plain, weighted) = (refine(&scene, false), refine(&scene, true));
+    eprintln!("the three good photos {good:.3}; with the bad one {plain:.3}, weighted {weighted:.3}");
+    assert!(
+        plain > good + 0.02,
+        "the bad photo pulls the face off: {plain:.3} against {good:.3}"
+    );
+    assert!(
+        weighted - good < 0.5 * (plain - good),
+        "photo weights take back most of it: {weighted:.3} (without {plain:.3}, the good photos alone {good:.3})"
     );
 }

@@ -1125,6 +1125,45 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
+            "refine shaded",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Shaded,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine shaded ungated",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Shaded,
+                    min_gain: Real::NEG_INFINITY,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine shaded β0.1",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Shaded,
+                    beta: 0.1,
+                    min_gain: Real::NEG_INFINITY,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine photo weights",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    photo_weights: true,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
             "refine ungated",
             with(&|o| {
                 o.refine = Some(RefineOptions {
@@ -1395,6 +1434,10 @@ fn main() -> Result<()> {
         "\n## Self-consistency: two disjoint halves of 16 photos, symmetric mean distance (mm)\n"
     )?;
     table_header(&mut page, &["subject"], &methods)?;
+    // Per method: each subject's first half, and the largest distance between one subject's
+    // halves.
+    let mut firsts: Vec<Vec<Option<Reconstruction>>> = vec![Vec::new(); methods.len()];
+    let mut within = vec![0.0 as Real; methods.len()];
     for (s, subject) in subjects.iter().enumerate() {
         let chosen = choose(args.pool, 16.min(args.pool), 999 + s as u64);
         let halves: Vec<Set<'_>> = [&chosen[..chosen.len() / 2], &chosen[chosen.len() / 2..]]
@@ -1409,19 +1452,62 @@ fn main() -> Result<()> {
             })
             .collect();
         write!(page, "| {} |", subject.name)?;
-        for method in &methods {
+        for (m, method) in methods.iter().enumerate() {
             let chosen = &method.reference(reference)?;
             let a = run_set(&halves[0], subject, &mut landmarks, chosen, &method.options)?.1;
             let b = run_set(&halves[1], subject, &mut landmarks, chosen, &method.options)?.1;
-            match (a, b) {
+            match (&a, b) {
                 (Some(a), Some(b)) => {
-                    let (ab, ba) = (between(&a, &b, subject)?, between(&b, &a, subject)?);
+                    let (ab, ba) = (between(a, &b, subject)?, between(&b, a, subject)?);
+                    within[m] = within[m].max((ab + ba) / 2.0);
                     write!(page, " {:.2} |", (ab + ba) / 2.0)?;
                 }
                 _ => write!(page, " failed |")?,
             }
+            firsts[m].push(a);
         }
         writeln!(page)?;
+    }
+    // Identity: the same measure between the first halves of two different subjects, the
+    // nearest pair, against the largest distance between one subject's own halves (issue 18
+    // asks for a ratio of 3 or more).
+    writeln!(
+        page,
+        "\nBetween subjects (first halves; the nearest pair) against within (the largest of the above):\n"
+    )?;
+    writeln!(
+        page,
+        "| method | nearest pair | between (mm) | within (mm) | ratio | the pair's truths apart (mm) |"
+    )?;
+    writeln!(page, "|---|---|---|---|---|---|")?;
+    for (m, method) in methods.iter().enumerate() {
+        let mut nearest: Option<(Real, usize, usize)> = None;
+        for a in 0..subjects.len() {
+            for b in a + 1..subjects.len() {
+                if let (Some(x), Some(y)) = (&firsts[m][a], &firsts[m][b]) {
+                    let d = (between(x, y, &subjects[a])? + between(y, x, &subjects[b])?) / 2.0;
+                    if nearest.is_none_or(|n| d < n.0) {
+                        nearest = Some((d, a, b));
+                    }
+                }
+            }
+        }
+        if let Some((d, a, b)) = nearest {
+            // The same measure between the two truths: what a perfect reconstruction would give.
+            let (x, y) = (&subjects[a], &subjects[b]);
+            let truths = (score(&y.truth, &y.structure, x)?.distance.mean
+                + score(&x.truth, &x.structure, y)?.distance.mean)
+                / 2.0;
+            writeln!(
+                page,
+                "| {} | {}, {} | {d:.2} | {:.2} | {:.1} | {truths:.2} |",
+                method.name,
+                x.name,
+                y.name,
+                within[m],
+                d / within[m].max(1e-9)
+            )?;
+        }
     }
     pictures(
         &sets[0],
