@@ -106,6 +106,18 @@ fn parse_args() -> Result<Args> {
     Ok(args)
 }
 
+/// How this run was asked for, as a command to run again (arguments with spaces quoted).
+fn command_line() -> String {
+    std::iter::once("cargo run --release --example photo_eval --".to_owned())
+        .chain(
+            std::env::args()
+                .skip(1)
+                .map(|a| if a.contains(' ') { format!("\"{a}\"") } else { a }),
+        )
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 /// The mean face in millimetres: what every reconstruction is measured against.
 struct MeanFace {
     mesh: TriangleMesh,
@@ -974,10 +986,7 @@ fn expressions(
          | method | photos of | {} |\n|---|---|{}\n{table}\n\
          ## Expressive against neutral photos: mean over sets of error(expressive) / error(neutral)\n\n\
          | method | {} |\n|---|{}\n{paired}",
-        std::env::args().collect::<Vec<_>>().join(" ").replace(
-            &*std::env::args().next().unwrap_or_default(),
-            "cargo run --release --example photo_eval --"
-        ),
+        command_line(),
         started.elapsed().as_secs_f64(),
         args.ict_subjects,
         EXPRESSIONS
@@ -1358,10 +1367,7 @@ fn main() -> Result<()> {
          Licences: the scan is \"Infinite, 3D Head Scan by Lee Perry-Smith is licensed under a Creative Commons \
          Attribution 3.0 Unported License. Based on a work at www.triplegangers.com.\" The pictures below derive from it \
          and are under that licence. ICT-FaceKit: Copyright (c) 2020 USC Institute for Creative Technologies, MIT licence.\n",
-        std::env::args().collect::<Vec<_>>().join(" ").replace(
-            &*std::env::args().next().unwrap_or_default(),
-            "cargo run --release --example photo_eval --"
-        ),
+        command_line(),
         args.ict_subjects,
         args.pool,
         args.counts,
