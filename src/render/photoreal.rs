@@ -131,6 +131,22 @@ impl Default for Lighting {
     }
 }
 
+impl Lighting {
+    /// A matte light: `diffuse` from `direction` (normalised here) plus `ambient`, no sheen,
+    /// hard shadows. What a first-order spherical-harmonic lighting describes exactly (bar the
+    /// shadows), as the refinement's tests and bench use it.
+    pub fn matte(direction: Vector3<Real>, diffuse: Real, ambient: Real) -> Self {
+        Lighting {
+            direction: direction.normalize(),
+            diffuse,
+            ambient,
+            specular: 0.0,
+            shininess: 1.0,
+            shadow_softness: 0.0,
+        }
+    }
+}
+
 /// What a photo looks like beyond its subject and light.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhotoLook {

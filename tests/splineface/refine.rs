@@ -115,21 +115,14 @@ fn scene_with_bump(truth_sigmas: &[Real], height: Real) -> Scene {
             1400.0,
             (420, 520),
         );
-        let lighting = Lighting {
-            direction: Vector3::from(light).normalize(),
-            diffuse: 0.6,
-            ambient: 0.4,
-            specular: 0.0,
-            shininess: 1.0,
-            shadow_softness: 0.0,
-        };
+        let lighting = Lighting::matte(Vector3::from(light), 0.6, 0.4);
         let look = PhotoLook {
             background_top: [0.3; 3],
             background_bottom: [0.5; 3],
             blur: 0.5,
-            noise: 0.01,
             seed: 3,
             supersampling: 2,
+            ..PhotoLook::default()
         };
         let photo = render_photo(&mesh, &map, &camera, &lighting, &look).unwrap();
         images.push(GreyImage::from_dynamic(&image::DynamicImage::ImageRgb8(photo)).unwrap());
