@@ -55,7 +55,9 @@
 //! landmark fit's (their disagreement at the finest level falls by
 //! [`RefineOptions::min_gain`] or more) and, when asked, the landmarks still fit (their RMS
 //! grows by at most [`RefineOptions::landmark_slack`] units; not checked by default);
-//! otherwise the landmark result stands and [`Refinement::accepted`] says why not.
+//! otherwise the landmark result stands and [`Refinement::accepted`] says why not. Within
+//! a refinement, a photo that disagrees with the others more than most (another light, an
+//! expression, make-up) can be made to count less ([`RefineOptions::photo_weights`]).
 
 use nalgebra::{DMatrix, DVector, Matrix2x3, Point2, Point3, Rotation3, Vector2, Vector3};
 use rayon::prelude::*;

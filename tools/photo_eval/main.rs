@@ -1153,17 +1153,6 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
-            "refine shaded β0.1",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Shaded,
-                    beta: 0.1,
-                    min_gain: Real::NEG_INFINITY,
-                    ..RefineOptions::default()
-                })
-            }),
-        ),
-        method(
             "refine photo weights",
             with(&|o| {
                 o.refine = Some(RefineOptions {
