@@ -154,6 +154,24 @@ pub struct FaceSurface {
 
 /// The parameters of the reference's structure points: their frontal positions through the
 /// reference frame, clamped to the domain.
+/// The RMS distance from `structure` to `surface` at the structure's parameters `params`
+/// (a [`DeformationReport::point_rms`]).
+fn point_rms(
+    surface: &BSplineSurface,
+    params: &[Point2<Real>],
+    structure: &[Point3<Real>],
+) -> Result<Real, FaceError> {
+    let flat: Vec<[Real; 2]> = params.iter().map(|p| [p.x, p.y]).collect();
+    let on_surface = surface.eval_many(&flat)?;
+    Ok((on_surface
+        .iter()
+        .zip(structure)
+        .map(|(a, b)| (a - b).norm_squared())
+        .sum::<Real>()
+        / structure.len().max(1) as Real)
+        .sqrt())
+}
+
 fn structure_params(reference: &ReferenceFace) -> Vec<Point2<Real>> {
     let frame = reference.frame();
     reference
@@ -399,15 +417,7 @@ impl FaceSurface {
             .map(|(c, d)| c + d)
             .collect();
         let surface = self.surface.with_control_points(controls)?;
-        let flat: Vec<[Real; 2]> = self.params.iter().map(|p| [p.x, p.y]).collect();
-        let on_surface = surface.eval_many(&flat)?;
-        let point_rms = (on_surface
-            .iter()
-            .zip(&self.structure)
-            .map(|(a, b)| (a - b).norm_squared())
-            .sum::<Real>()
-            / self.structure.len().max(1) as Real)
-            .sqrt();
+        let point_rms = point_rms(&surface, &self.params, &self.structure)?;
         Ok(FaceSurface {
             surface,
             report: DeformationReport {

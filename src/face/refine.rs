@@ -693,7 +693,10 @@ fn fit_shading(
         })
         .collect();
     let mut lights = vec![nalgebra::Vector4::new(1.0, 0.0, 0.0, 0.0); photos];
-    for _ in 0..SHADING_ROUNDS {
+    for round in 0..SHADING_ROUNDS {
+        if round > 0 {
+            reweight(&mut weights, raw, visibility, &lights, &basis);
+        }
         // The pairs' disagreement is `2 (D − V)` in the lights, `D` block diagonal
         // (`Σₛ (Σᵢ cᵢ Iᵢ²) cⱼ h hᵀ` per photo `j`) and `V = Σₛ v vᵀ`, `v = (cᵢ Iᵢ h)ᵢ`; its ratio
         // to `D` is the weighted `sin²` of the angle between each sample's intensities and its
@@ -723,8 +726,8 @@ fn fit_shading(
                 v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
             }
             for &(i, _, _) in &seen {
+                let vi = v.fixed_rows::<4>(4 * i).into_owned();
                 for &(j, _, _) in &seen {
-                    let vi = v.fixed_rows::<4>(4 * i).into_owned();
                     let vj = v.fixed_rows::<4>(4 * j).into_owned();
                     let mut block = q.fixed_view_mut::<4, 4>(4 * i, 4 * j);
                     block += vi * vj.transpose();
@@ -742,8 +745,7 @@ fn fit_shading(
         let Some(cholesky) = d.cholesky() else {
             return vec![vec![1.0; n]; photos];
         };
-        let factor = cholesky.l();
-        let Some(inverse) = factor.clone().try_inverse() else {
+        let Some(inverse) = cholesky.l().try_inverse() else {
             return vec![vec![1.0; n]; photos];
         };
         let reduced = &inverse * &q * inverse.transpose();
@@ -774,29 +776,6 @@ fn fit_shading(
             found.iter_mut().for_each(|l| *l = -*l);
         }
         lights = found;
-        // The robust weights about each sample's albedo.
-        for s in 0..n {
-            let h = basis(s);
-            let (mut top, mut bottom) = (0.0, 0.0);
-            for i in 0..photos {
-                if let Some(value) = raw[i][s] {
-                    let shade = lights[i].dot(&h);
-                    let c = visibility[i][s].max(0.0);
-                    top += c * value * shade;
-                    bottom += c * shade * shade;
-                }
-            }
-            if bottom <= 1e-12 {
-                continue;
-            }
-            let albedo = top / bottom;
-            for i in 0..photos {
-                if let Some(value) = raw[i][s] {
-                    let residual = value - albedo * lights[i].dot(&h);
-                    weights[i][s] = visibility[i][s].max(0.0) * cauchy(residual, 0.1 * value.abs().max(1e-3));
-                }
-            }
-        }
     }
     lights
         .iter()
@@ -818,6 +797,40 @@ fn fit_shading(
             shade.iter().map(|v| (v / mean).max(0.1)).collect()
         })
         .collect()
+}
+
+/// The robust weights of [`fit_shading`] under `lights`: each intensity's visibility times a
+/// Cauchy weight on its relative residual about its sample's albedo times its shading.
+fn reweight(
+    weights: &mut [Vec<Real>],
+    raw: &[Vec<Option<Real>>],
+    visibility: &[Vec<Real>],
+    lights: &[nalgebra::Vector4<Real>],
+    basis: &impl Fn(usize) -> nalgebra::Vector4<Real>,
+) {
+    let photos = lights.len();
+    for s in 0..weights.first().map_or(0, Vec::len) {
+        let h = basis(s);
+        let (mut top, mut bottom) = (0.0, 0.0);
+        for i in 0..photos {
+            if let Some(value) = raw[i][s] {
+                let shade = lights[i].dot(&h);
+                let c = visibility[i][s].max(0.0);
+                top += c * value * shade;
+                bottom += c * shade * shade;
+            }
+        }
+        if bottom <= 1e-12 {
+            continue;
+        }
+        let albedo = top / bottom;
+        for i in 0..photos {
+            if let Some(value) = raw[i][s] {
+                let residual = value - albedo * lights[i].dot(&h);
+                weights[i][s] = visibility[i][s].max(0.0) * cauchy(residual, 0.1 * value.abs().max(1e-3));
+            }
+        }
+    }
 }
 
 /// Rounds of the photos' shading fit, each reweighting the intensities the model does not
@@ -990,21 +1003,13 @@ impl Level<'_> {
     /// fully.
     fn photo_weights(&self, state: &State) -> Vec<Real> {
         let visibility = self.visibility(state);
-        let normalisers = self.normalisers(state, &visibility);
-        let per_sample: Vec<Vec<(usize, Real, Real)>> = (0..self.samples.len())
-            .into_par_iter()
-            .map(|s| {
-                let seen = self.seen(state, &visibility, &normalisers, s, false);
-                let Some((_, mean)) = agreement(&seen) else {
-                    return Vec::new();
-                };
-                seen.iter()
-                    .map(|v| (v.photo, v.weight, v.weight * (v.value - mean).powi(2)))
-                    .collect()
-            })
-            .collect();
+        let per_sample = self.per_sample(state, &visibility, |seen, _, mean| {
+            seen.iter()
+                .map(|v| (v.photo, v.weight, v.weight * (v.value - mean).powi(2)))
+                .collect::<Vec<_>>()
+        });
         let mut sums = vec![(0.0, 0.0); state.cameras.len()];
-        for (i, weight, square) in per_sample.into_iter().flatten() {
+        for (i, weight, square) in per_sample.into_iter().flatten().flatten() {
             sums[i].0 += weight;
             sums[i].1 += square;
         }
@@ -1142,17 +1147,31 @@ impl Level<'_> {
     /// Per sample: the weighted sum of squares of the photos' normalised intensities about
     /// their mean, and the summed weights; `None` where fewer than two photos see it.
     fn disagreement(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Option<(Real, Real)>> {
+        self.per_sample(state, visibility, |seen, total, mean| {
+            let sum = seen
+                .iter()
+                .map(|v| v.weight * (v.value - mean).powi(2))
+                .sum::<Real>();
+            (sum, total)
+        })
+    }
+
+    /// `f(seen, total, mean)` for every sample two photos or more see (the photos' views of
+    /// it, their summed weight and their weighted mean, [`agreement`]), `None` for the others;
+    /// in the samples' order whatever the threads.
+    fn per_sample<T: Send>(
+        &self,
+        state: &State,
+        visibility: &[Vec<Real>],
+        f: impl Fn(&[Seen], Real, Real) -> T + Sync,
+    ) -> Vec<Option<T>> {
         let normalisers = self.normalisers(state, visibility);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
                 let seen = self.seen(state, visibility, &normalisers, s, false);
                 let (total, mean) = agreement(&seen)?;
-                let sum = seen
-                    .iter()
-                    .map(|v| v.weight * (v.value - mean).powi(2))
-                    .sum::<Real>();
-                Some((sum, total))
+                Some(f(&seen, total, mean))
             })
             .collect()
     }
@@ -1170,23 +1189,16 @@ impl Level<'_> {
 
     /// The robust consistency cost.
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
-        let normalisers = self.normalisers(state, visibility);
         let c = 2.0 * self.options.sigma;
-        (0..self.samples.len())
-            .into_par_iter()
-            .map(|s| {
-                let seen = self.seen(state, visibility, &normalisers, s, false);
-                let Some((_, mean)) = agreement(&seen) else {
-                    return 0.0;
-                };
-                seen.iter()
-                    .map(|v| v.weight * c * c * (1.0 + ((v.value - mean) / c).powi(2)).ln())
-                    .sum::<Real>()
-            })
-            // Summed in order: the same result whatever the threads.
-            .collect::<Vec<Real>>()
-            .iter()
-            .sum::<Real>()
+        self.per_sample(state, visibility, |seen, _, mean| {
+            seen.iter()
+                .map(|v| v.weight * c * c * (1.0 + ((v.value - mean) / c).powi(2)).ln())
+                .sum::<Real>()
+        })
+        // Summed in order: the same result whatever the threads.
+        .iter()
+        .flatten()
+        .sum::<Real>()
             * self.options.beta
             / (self.options.sigma * self.options.sigma)
     }

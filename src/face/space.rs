@@ -1255,15 +1255,7 @@ impl FaceSurface {
         }
         let frame = *reference.frame();
         let params = super::structure_params(reference);
-        let flat: Vec<[Real; 2]> = params.iter().map(|p| [p.x, p.y]).collect();
-        let on_surface = surface.eval_many(&flat)?;
-        let point_rms = (on_surface
-            .iter()
-            .zip(&structure)
-            .map(|(a, b)| (a - b).norm_squared())
-            .sum::<Real>()
-            / POINT_COUNT as Real)
-            .sqrt();
+        let point_rms = super::point_rms(&surface, &params, &structure)?;
         Ok(FaceSurface {
             surface,
             frame,
