@@ -236,6 +236,9 @@ struct OutputArgs {
     /// The depth map's larger side, pixels.
     #[arg(long, default_value_t = 512)]
     depth_size: usize,
+    /// The texture atlas's side (`face.png`), texels: 16 to 8192.
+    #[arg(long, default_value_t = 1024)]
+    texture_size: u32,
     /// Stop with an error when fewer photos than this are usable (one photo measured worse
     /// than the unchanged mean face; see tools/results/evaluation.md).
     #[arg(long, default_value_t = splineface::pipeline::MIN_PHOTOS)]
@@ -308,6 +311,9 @@ impl OutputArgs {
         if self.min_photos == 0 {
             bail!("--min-photos must be at least 1");
         }
+        if !(16..=8192).contains(&self.texture_size) {
+            bail!("--texture-size {} must be between 16 and 8192", self.texture_size);
+        }
         Ok(PipelineOptions {
             units,
             min_photos: self.min_photos,
@@ -317,6 +323,10 @@ impl OutputArgs {
                 spacing: self.spacing,
             },
             depth_map_size: self.depth_size,
+            texture: splineface::face::TextureOptions {
+                size: self.texture_size,
+                ..splineface::face::TextureOptions::default()
+            },
             refine: if self.no_refine {
                 None
             } else {
@@ -1256,7 +1266,7 @@ fn reconstruct_command(
         "  mesh       {} vertices, {} triangles{}",
         result.mesh.mesh.positions().len(),
         result.mesh.mesh.triangles().len(),
-        if result.textured.is_some() {
+        if result.texture.is_some() {
             ", textured"
         } else {
             ""

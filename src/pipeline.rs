@@ -37,8 +37,8 @@ use crate::align::{
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
 use crate::export::{PngTexture, StepOptions, encode_glb, encode_png, encode_step};
 use crate::face::{
-    ClippedMesh, Deformation, FaceError, FaceSurface, MeshOptions, RefineOptions, RefineView, Refinement,
-    Units,
+    ClippedMesh, Deformation, FaceError, FaceSurface, FaceTexture, MeshOptions, RefineOptions, RefineView,
+    RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
 };
 use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
 use crate::reference::ReferenceFace;
@@ -109,6 +109,9 @@ pub struct PipelineOptions {
     /// with images and [`Shape::Space`] only; `None` keeps the landmark fit. On by default
     /// (measured: [`RefineOptions::default`]).
     pub refine: Option<RefineOptions>,
+    /// How the texture atlas is baked from the photos ([`crate::face::bake_texture`]; with
+    /// images only).
+    pub texture: TextureOptions,
 }
 
 /// Where the face's shape comes from.
@@ -236,6 +239,7 @@ impl Default for PipelineOptions {
             shape: Shape::default(),
             expression_of: None,
             refine: Some(RefineOptions::default()),
+            texture: TextureOptions::default(),
         }
     }
 }
@@ -302,8 +306,12 @@ pub struct Reconstruction {
     pub face: FaceSurface,
     /// Its clipped mesh.
     pub mesh: ClippedMesh,
-    /// The textured mesh and its texture, from the most frontal photo, when images were given.
-    pub textured: Option<(TriangleMesh, image::RgbImage)>,
+    /// The texture atlas baked from every usable photo, when images were given (and one
+    /// photo's pose was not flagged as bad).
+    pub texture: Option<FaceTexture>,
+    /// The photos that gave the texture (names, in the order of its gains and shares), or
+    /// why there is none.
+    pub texture_photos: Result<Vec<String>, String>,
     /// Photos left out, and why.
     pub dropped: Vec<Dropped>,
     /// Each photo's landmark agreement with the others ([`crate::align::landmark_agreement`]),
@@ -489,12 +497,12 @@ pub fn reconstruct(
     };
     let mut refinement = None;
     let mut surface_start = start;
-    let (face, space_fit, shape) = match space {
+    let (face, space_fit, shape) = match &space {
         Some((space, fit_options)) => {
             let views: Vec<Vec<nalgebra::Point2<Real>>> =
                 kept.iter().map(|&k| inputs[k].points.y_up()).collect();
             let weights = crate::structure::contour_weighted(options.depth.contour_weight);
-            let mut fit = space.fit_photos(&views, &weights, &fit_options)?;
+            let mut fit = space.fit_photos(&views, &weights, fit_options)?;
             timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
             if let (Some(refine), true) = (options.refine, with_images) {
                 progress("refining the face with the photos' pixels");
@@ -592,25 +600,36 @@ pub fn reconstruct(
         }
     };
     let mesh = face.mesh(&options.mesh)?;
-    let textured = if with_images {
-        depth.most_frontal_photo().map(|k| {
-            let colour = &inputs[kept[k]].image.as_ref().expect("images").colour;
-            (
-                mesh.photo_texture(&depth.photos[k], colour.width(), colour.height()),
-                colour.clone(),
-            )
-        })
-    } else {
-        None
-    };
     timings.push(("surface".to_owned(), surface_start.elapsed().as_secs_f64()));
+    let (texture, texture_photos) = if with_images {
+        progress("baking the texture from the photos");
+        let start = Instant::now();
+        let baked = texture_from_photos(
+            &face,
+            reference,
+            &inputs,
+            &kept,
+            &depth,
+            space.as_ref().map(|(s, _)| s).zip(space_fit.as_ref()),
+            refinement.as_ref(),
+            &options.texture,
+        )?;
+        timings.push(("texture".to_owned(), start.elapsed().as_secs_f64()));
+        match baked {
+            Ok((texture, names)) => (Some(texture), Ok(names)),
+            Err(why) => (None, Err(why)),
+        }
+    } else {
+        (None, Err("no images".to_owned()))
+    };
     Ok(Reconstruction {
         frontal,
         rasl,
         depth,
         face,
         mesh,
-        textured,
+        texture,
+        texture_photos,
         dropped,
         structure_weight: (structure_weight, weight_note),
         space: space_fit,
@@ -624,6 +643,85 @@ pub fn reconstruct(
         timings,
         options: *options,
     })
+}
+
+/// The texture atlas of `face` from the kept photos (see [`crate::face::texture`]), or why
+/// there is none. Each photo is seen through its last fitted camera: the refinement's when it
+/// ran, else the face-space fit's, else the depth stage's pose; and on its own face (the
+/// fitted expression) when the photos were given expressions. Photos whose points fit badly
+/// ([`crate::depth::DepthWarning::BadFit`]) give nothing.
+#[allow(clippy::too_many_arguments)]
+fn texture_from_photos(
+    face: &FaceSurface,
+    reference: &ReferenceFace,
+    inputs: &[&Input],
+    kept: &[usize],
+    depth: &DepthEstimate,
+    space: Option<(&crate::face::FaceSpace, &crate::face::PhotoSpaceFit)>,
+    refinement: Option<&Refinement>,
+    options: &TextureOptions,
+) -> Result<Result<(FaceTexture, Vec<String>), String>, PipelineError> {
+    let usable: Vec<usize> = (0..kept.len()).filter(|&slot| !depth.fits_badly(slot)).collect();
+    if usable.is_empty() {
+        return Ok(Err("every photo's points fit badly".to_owned()));
+    }
+    let displacement = refinement
+        .filter(|r| r.accepted && !r.displacement.is_empty())
+        .map(|r| r.displacement.as_slice());
+    let mut own_faces: Vec<Option<FaceSurface>> = Vec::with_capacity(usable.len());
+    let mut cameras = Vec::with_capacity(usable.len());
+    for &slot in &usable {
+        let colour = &inputs[kept[slot]]
+            .image
+            .as_ref()
+            .expect("images were given")
+            .colour;
+        let size = (colour.width(), colour.height());
+        let camera = match (refinement, space) {
+            (Some(r), _) => r.cameras[slot],
+            (None, Some((_, fit))) => {
+                let (pose, offset) = &fit.poses[slot];
+                RefinedCamera::orthographic(pose, *offset, size)
+            }
+            (None, None) => {
+                let photo = &depth.photos[slot];
+                let middle = photo.eye_midpoint;
+                RefinedCamera::orthographic(&photo.pose, nalgebra::Point2::new(middle.x, -middle.y), size)
+            }
+        };
+        cameras.push(camera);
+        let own = match space {
+            Some((space, fit)) if !fit.expression_names.is_empty() => {
+                let own = space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?;
+                Some(match displacement {
+                    Some(d) => own.displaced(d)?,
+                    None => own,
+                })
+            }
+            _ => None,
+        };
+        own_faces.push(own);
+    }
+    let photos: Vec<TexturePhoto<'_>> = usable
+        .iter()
+        .zip(&cameras)
+        .zip(&own_faces)
+        .map(|((&slot, camera), own)| TexturePhoto {
+            image: &inputs[kept[slot]]
+                .image
+                .as_ref()
+                .expect("images were given")
+                .colour,
+            camera: *camera,
+            surface: own.as_ref(),
+        })
+        .collect();
+    let texture = bake_texture(face, &photos, options)?;
+    let names = usable
+        .iter()
+        .map(|&slot| inputs[kept[slot]].points.name.clone())
+        .collect();
+    Ok(Ok((texture, names)))
 }
 
 /// The consistency map as a picture: the photos' disagreement on the landmark fit's face
@@ -665,9 +763,10 @@ impl Reconstruction {
         self.depth.structure.iter().map(|p| p * scale).collect()
     }
 
-    /// The face mesh in output units (untextured).
+    /// The face mesh in output units, its texture coordinates the surface parameters (the
+    /// texture atlas's coordinates, [`crate::face::texture`]).
     pub fn output_mesh(&self) -> TriangleMesh {
-        self.mesh.mesh.transformed(&self.options.units.transform())
+        FaceTexture::textured_mesh(&self.mesh).transformed(&self.options.units.transform())
     }
 
     /// Every output file, as `(path relative to the output directory, bytes)`: see the module
@@ -685,11 +784,10 @@ impl Reconstruction {
         let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
 
         // Meshes.
-        match &self.textured {
-            Some((textured, colour)) => {
-                let png = encode_png(colour).map_err(encode_error("face.png"))?;
-                let textured = textured.transformed(&to_units);
-                let obj = crate::mesh::format_obj_with_material(&textured, Some(("face.mtl", "face")));
+        match &self.texture {
+            Some(texture) => {
+                let png = encode_png(&texture.atlas).map_err(encode_error("face.png"))?;
+                let obj = crate::mesh::format_obj_with_material(&mesh, Some(("face.mtl", "face")));
                 files.push(("face.obj".into(), obj.into_bytes()));
                 files.push((
                     "face.mtl".into(),
@@ -698,9 +796,14 @@ impl Reconstruction {
                 ));
                 files.push((
                     "face.glb".into(),
-                    encode_glb(&textured, "face", Some(PngTexture { png: &png })),
+                    encode_glb(&mesh, "face", Some(PngTexture { png: &png })),
                 ));
                 files.push(("face.png".into(), png));
+                files.push((
+                    "texture-confidence.png".into(),
+                    encode_png(&texture.confidence_image())
+                        .map_err(encode_error("texture-confidence.png"))?,
+                ));
             }
             None => {
                 files.push(("face.obj".into(), crate::mesh::format_obj(&mesh).into_bytes()));
@@ -890,7 +993,28 @@ impl Reconstruction {
                 "point_rms_units": report.point_rms,
                 "mesh_vertices": mesh.positions().len(),
                 "mesh_triangles": mesh.triangles().len(),
-                "textured": self.textured.is_some(),
+                "textured": self.texture.is_some(),
+            },
+            "texture": match (&self.texture, &self.texture_photos) {
+                (Some(t), Ok(names)) => {
+                    let [seen, mirrored, filled] = t.counts();
+                    let inside = (seen + mirrored + filled).max(1) as Real;
+                    json!({
+                        "size": t.atlas.width(),
+                        "texels_inside": seen + mirrored + filled,
+                        "seen": seen as Real / inside,
+                        "mirrored": mirrored as Real / inside,
+                        "filled": filled as Real / inside,
+                        "sharpness": self.options.texture.sharpness,
+                        "photos": names.iter().zip(&t.gains).zip(&t.shares).map(|((name, gain), share)| json!({
+                            "name": name,
+                            "gain": gain,
+                            "share": share,
+                        })).collect::<Vec<_>>(),
+                    })
+                }
+                (_, Err(why)) => json!({ "none": why }),
+                (None, Ok(_)) => json!(null),
             },
         });
         files.push((

@@ -230,18 +230,20 @@ pub enum DepthWarning {
 }
 
 impl DepthEstimate {
+    /// Whether photo `k`'s points fit the structure badly (a [`DepthWarning::BadFit`]).
+    pub fn fits_badly(&self, k: usize) -> bool {
+        self.warnings
+            .iter()
+            .any(|w| matches!(w, DepthWarning::BadFit { photo, .. } if *photo == self.photos[k].name))
+    }
+
     /// The photo seen most nearly from the front (smallest [`Pose::view_angle_degrees`]) among
     /// those without a [`DepthWarning::BadFit`]; `None` when every photo fits badly.
     pub fn most_frontal_photo(&self) -> Option<usize> {
-        let bad = |name: &str| {
-            self.warnings
-                .iter()
-                .any(|w| matches!(w, DepthWarning::BadFit { photo, .. } if photo == name))
-        };
         self.photos
             .iter()
             .enumerate()
-            .filter(|(_, p)| !bad(&p.name))
+            .filter(|&(k, _)| !self.fits_badly(k))
             .min_by(|a, b| {
                 a.1.pose
                     .view_angle_degrees()

@@ -26,6 +26,7 @@
 pub mod refine;
 mod space;
 mod tessellate;
+pub mod texture;
 
 use nalgebra::{Affine3, Matrix3, Matrix4, Point2, Point3, Vector3};
 
@@ -39,6 +40,7 @@ pub use refine::{
 };
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
+pub use texture::{FaceTexture, TexelSource, TextureOptions, TexturePhoto, bake_texture};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq)]

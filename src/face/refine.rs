@@ -268,13 +268,87 @@ impl Projected {
 }
 
 impl RefinedCamera {
+    /// The landmark fit's scaled orthographic camera (`κ = 0`) for a photo of `width × height`
+    /// pixels: `pose` and `offset` as [`PhotoSpaceFit::poses`] gives them (`y` up).
+    pub fn orthographic(
+        pose: &crate::depth::Pose,
+        offset: Point2<Real>,
+        (width, height): (u32, u32),
+    ) -> Self {
+        RefinedCamera {
+            rotation: pose.rotation,
+            scale: pose.scale,
+            offset: offset.coords,
+            perspective: 0.0,
+            centre: Vector2::new((Real::from(width) - 1.0) / 2.0, -(Real::from(height) - 1.0) / 2.0),
+        }
+    }
+
+    /// A pinhole camera of the photo-realistic renderer ([`crate::render::Camera`]) as a
+    /// refined camera: `R = diag(1, −1, −1) R_cam`, `κ = 1/t_z`, `s = f/t_z`, the principal
+    /// point kept. `None` when the world's origin is not in front of the camera.
+    pub fn from_pinhole(camera: &crate::render::Camera) -> Option<Self> {
+        let t = camera.translation;
+        if t.z.is_nan() || t.z <= 0.0 {
+            return None;
+        }
+        let flip = Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_diagonal(&Vector3::new(
+            1.0, -1.0, -1.0,
+        )));
+        let scale = camera.focal / t.z;
+        Some(RefinedCamera {
+            rotation: flip * camera.rotation,
+            scale,
+            offset: Vector2::new(camera.centre.x + scale * t.x, -camera.centre.y - scale * t.y),
+            perspective: 1.0 / t.z,
+            centre: Vector2::new(camera.centre.x, -camera.centre.y),
+        })
+    }
+
+    /// Where the camera sees `x` in its photo, pixels with `y` down (image rows), and the
+    /// point's depth key: `(R X)_z / (1 − κ (R X)_z)`, larger toward the camera and affine in
+    /// the image (so that it may be interpolated linearly over a projected triangle). `None`
+    /// behind the camera (or too near it).
+    pub fn image_point(&self, x: &Point3<Real>) -> Option<(Point2<Real>, Real)> {
+        let q = self.rotation * x.coords;
+        let den = self.depth_factor(&q)?;
+        let p = self.centre + (self.offset - self.centre + Vector2::new(q.x, q.y) * self.scale) / den;
+        Some((Point2::new(p.x, -p.y), q.z / den))
+    }
+
+    /// The pixels per canonical unit at `x` (the scale magnified by the perspective), or
+    /// `None` behind the camera.
+    pub fn resolution(&self, x: &Point3<Real>) -> Option<Real> {
+        Some(self.scale / self.depth_factor(&(self.rotation * x.coords))?)
+    }
+
+    /// `1 − κ q_z` for `q = R X`: the point's distance from the camera over the origin's;
+    /// `None` behind the camera or too near it.
+    fn depth_factor(&self, q: &Vector3<Real>) -> Option<Real> {
+        let den = 1.0 - self.perspective * q.z;
+        (den >= 0.2).then_some(den)
+    }
+
+    /// The unit vector from `x` toward the camera, in the canonical frame.
+    pub fn towards(&self, x: &Point3<Real>) -> Vector3<Real> {
+        self.rotation.inverse() * self.towards_from(&(self.rotation * x.coords))
+    }
+
+    /// The unit vector toward the camera from `q = R X`, in the camera's frame (the camera
+    /// sits at `q = (0, 0, 1/κ)`, or at infinity along `+z` when `κ = 0`).
+    fn towards_from(&self, q: &Vector3<Real>) -> Vector3<Real> {
+        Vector3::new(
+            -self.perspective * q.x,
+            -self.perspective * q.y,
+            1.0 - self.perspective * q.z,
+        )
+        .normalize()
+    }
+
     /// Where the camera sees `x`, linearised; `None` behind the camera (or too near it).
     fn project(&self, x: &Point3<Real>) -> Option<Projected> {
         let q = self.rotation * x.coords;
-        let den = 1.0 - self.perspective * q.z;
-        if den < 0.2 {
-            return None;
-        }
+        let den = self.depth_factor(&q)?;
         let m = self.offset - self.centre + Vector2::new(q.x, q.y) * self.scale;
         let p = Point2::from(self.centre + m / den);
         let (f, g) = (self.scale / den, self.perspective / (den * den));
@@ -950,13 +1024,7 @@ impl Level<'_> {
                         continue;
                     };
                     let normal = camera.rotation * self.samples.normals[s];
-                    let towards = Vector3::new(
-                        -camera.perspective * q.x,
-                        -camera.perspective * q.y,
-                        1.0 - camera.perspective * q.z,
-                    )
-                    .normalize();
-                    let facing = normal.dot(&towards);
+                    let facing = normal.dot(&camera.towards_from(&q));
                     *item = ((facing - 0.15) / 0.35).clamp(0.0, 1.0);
                     places.push(Some((image.crop_of(&p), q.z)));
                 }
@@ -1528,15 +1596,12 @@ impl FaceSpace {
                 .poses
                 .iter()
                 .zip(views)
-                .map(|((pose, offset), view)| RefinedCamera {
-                    rotation: pose.rotation,
-                    scale: pose.scale,
-                    offset: offset.coords,
-                    perspective: 0.0,
-                    centre: Vector2::new(
-                        (view.image.width() as Real - 1.0) / 2.0,
-                        -(view.image.height() as Real - 1.0) / 2.0,
-                    ),
+                .map(|((pose, offset), view)| {
+                    RefinedCamera::orthographic(
+                        pose,
+                        *offset,
+                        (view.image.width() as u32, view.image.height() as u32),
+                    )
                 })
                 .collect(),
             field: if options.field {

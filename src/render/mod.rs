@@ -9,7 +9,7 @@
 
 mod photo;
 mod photoreal;
-mod raster;
+pub(crate) mod raster;
 mod write;
 
 use nalgebra::{Point2, Point3, Rotation3, Vector3};

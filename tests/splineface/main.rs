@@ -28,3 +28,4 @@ mod reference;
 mod refine;
 mod render;
 mod structure;
+mod texture;

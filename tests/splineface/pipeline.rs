@@ -124,7 +124,7 @@ fn the_library_pipeline_beats_the_mean_face() {
     )
     .unwrap();
     assert_eq!(result.depth.photos.len(), 8);
-    assert!(result.rasl.is_some() && result.textured.is_some());
+    assert!(result.rasl.is_some() && result.texture.is_some());
     // Poses come back.
     for (fit, pose) in result.depth.photos.iter().zip(&scene.poses) {
         let [yaw, pitch, roll] = fit.pose.yaw_pitch_roll_degrees();

@@ -1125,6 +1125,16 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
+            "refine field ungated",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    field: true,
+                    min_gain: Real::NEG_INFINITY,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
             "refine surface window",
             with(&|o| {
                 o.refine = Some(RefineOptions {

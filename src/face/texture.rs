@@ -1,0 +1,854 @@
+//! A face texture from every photo, in the surface's own `(u, v)`.
+//!
+//! The B-spline surface's parameters are already a smooth, nearly isometric map of the face
+//! (the reference's frontal plane scaled onto the unit square), so the texture needs no
+//! unwrapping: texel `(c, r)` of an `n × n` atlas is the surface point at
+//! `(u, v) = ((c + ½)/n, 1 − (r + ½)/n)`, and a mesh vertex's texture coordinates are its
+//! surface parameters (`v` up, OBJ's convention).
+//!
+//! # What each texel takes from each photo
+//!
+//! Every texel inside the clip region is placed on the photo's own surface (the face with that
+//! photo's expression, when one was fitted) and projected by the photo's fitted camera. Its
+//! weight in photo `i` is the product of
+//!
+//! * **visibility**: 0 unless the texel is the front-most surface where it lands: a depth
+//!   buffer of the surface (a grid of quads every [`OCCLUDER_STRIDE`] texels) rasterised in the
+//!   photo, with a tolerance of [`DEPTH_TOLERANCE`] units plus two buffer cells' worth of
+//!   depth; feathered to 0 over [`FEATHER`] of the atlas's side toward texels the photo does
+//!   not see, so that an occlusion edge (the nose's side) leaves no seam;
+//! * **foreshortening**: `r²` with `r = (cos θ − cos 80°)/(1 − cos 80°)` clamped to `[0, 1]`, `θ`
+//!   between the surface's normal and the direction to the camera;
+//! * **distance from the photo's border**: rising linearly over the outer 2% of the photo's
+//!   smaller side;
+//! * **resolution**: the photo's pixels per unit there against the median photo's, at most 1.
+//!
+//! # Matching and blending
+//!
+//! Photos differ in exposure and white balance. Each photo gets a gain per channel, fitted in
+//! the logarithm on the texels two photos share (weighted by both weights, Cauchy-reweighted
+//! against shadows and highlights that differ between photos), normalised to a weighted
+//! geometric mean of 1. Colours are blended in linear light as `Σ wᵢᵖ gᵢ cᵢ / Σ wᵢᵖ`, `p` the
+//! [`TextureOptions::sharpness`]: the best view of each texel dominates while the weights
+//! still fall smoothly to the next one.
+//!
+//! # Texels no photo sees
+//!
+//! Faces are nearly symmetric: a texel whose mirror image (`x ↦ −x` in the reference's frontal
+//! plane) is seen takes that colour. The rest, and the atlas outside the clip region (padding
+//! against bleeding when the texture is filtered), are filled by push-pull diffusion from the
+//! texels around them. [`FaceTexture::sources`] says which texel came from where.
+
+use image::{Rgb, RgbImage};
+use nalgebra::{DMatrix, DVector, Point2, Point3, Vector3};
+use rayon::prelude::*;
+
+use super::{ClippedMesh, FaceError, FaceSurface, RefinedCamera};
+use crate::Real;
+use crate::mesh::{TextureCoordinates, TriangleMesh};
+use crate::reference::polygon_contains;
+
+/// The depth buffer's grid: one quad every this many texels of the atlas.
+pub const OCCLUDER_STRIDE: usize = 4;
+/// The depth test's tolerance, canonical units, beyond the buffer's own resolution.
+pub const DEPTH_TOLERANCE: Real = 1.0;
+/// The feathering's width toward texels a photo does not see, as a fraction of the atlas's side.
+pub const FEATHER: Real = 1.0 / 128.0;
+/// `cos 80°`: views more oblique than this give nothing.
+const GRAZING: Real = 0.173_648_177_666_930_35;
+
+/// Options of [`bake_texture`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TextureOptions {
+    /// The atlas's side in texels (16 to 8192).
+    pub size: u32,
+    /// `p`, the power of the weights in the blend: 1 averages the photos by their weights,
+    /// larger values let the best view of each texel dominate.
+    pub sharpness: Real,
+    /// Fit each photo's colour gains before blending.
+    pub match_colours: bool,
+    /// Fill texels no photo sees from their mirror images before diffusing.
+    pub mirror: bool,
+}
+
+impl Default for TextureOptions {
+    /// A 1024² atlas, `p = 4`, colours matched, mirror filling on.
+    fn default() -> Self {
+        TextureOptions {
+            size: 1024,
+            sharpness: 4.0,
+            match_colours: true,
+            mirror: true,
+        }
+    }
+}
+
+/// One photo for [`bake_texture`].
+#[derive(Debug, Clone, Copy)]
+pub struct TexturePhoto<'a> {
+    /// The photo in colour (sRGB).
+    pub image: &'a RgbImage,
+    /// Its fitted camera, in the face's canonical frame.
+    pub camera: RefinedCamera,
+    /// The face as this photo shows it (its expression) when it differs from the face being
+    /// textured; it must share the face's parameter domain.
+    pub surface: Option<&'a FaceSurface>,
+}
+
+/// Where a texel's colour came from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TexelSource {
+    /// Outside the clip region (padding, diffused).
+    Outside,
+    /// Seen by at least one photo.
+    Seen,
+    /// Unseen, its mirror image seen.
+    Mirrored,
+    /// Unseen, and so is its mirror image: diffused from around it.
+    Filled,
+}
+
+/// A baked texture ([`bake_texture`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceTexture {
+    /// The atlas, `size × size`, sRGB; row 0 is `v = 1`.
+    pub atlas: RgbImage,
+    /// Per texel, row-major like the atlas: where its colour came from.
+    pub sources: Vec<TexelSource>,
+    /// Per texel: the largest weight any photo gave it (0 to 1), or its mirror image's for a
+    /// mirrored texel; 0 elsewhere.
+    pub confidence: Vec<f32>,
+    /// Per photo: its colour gains (linear light, red, green, blue).
+    pub gains: Vec<[Real; 3]>,
+    /// Per photo: its share of the blend over the seen texels (the shares sum to 1).
+    pub shares: Vec<Real>,
+}
+
+impl FaceTexture {
+    /// Texels by source: `[seen, mirrored, filled]` inside the clip region.
+    pub fn counts(&self) -> [usize; 3] {
+        let mut counts = [0; 3];
+        for s in &self.sources {
+            match s {
+                TexelSource::Seen => counts[0] += 1,
+                TexelSource::Mirrored => counts[1] += 1,
+                TexelSource::Filled => counts[2] += 1,
+                TexelSource::Outside => {}
+            }
+        }
+        counts
+    }
+
+    /// The mesh with texture coordinates: each vertex's surface parameters.
+    pub fn textured_mesh(mesh: &ClippedMesh) -> TriangleMesh {
+        let texture = TextureCoordinates {
+            uvs: mesh.params.clone(),
+            triangles: mesh.mesh.triangles().to_vec(),
+        };
+        mesh.mesh
+            .clone()
+            .with_texture(texture)
+            .expect("one parameter pair in [0, 1]² per vertex, indexed like the triangles")
+    }
+
+    /// The confidence map as a picture: seen texels green (brighter where the best photo's
+    /// weight is larger), mirrored ones blue (by their mirror image's weight), diffused ones
+    /// red, the outside of the clip region black.
+    pub fn confidence_image(&self) -> RgbImage {
+        let side = self.atlas.width();
+        let level = |c: f32| (55.0 + 200.0 * c.clamp(0.0, 1.0)).round() as u8;
+        RgbImage::from_fn(side, side, |x, y| {
+            let k = (y * side + x) as usize;
+            match self.sources[k] {
+                TexelSource::Outside => Rgb([0, 0, 0]),
+                TexelSource::Seen => Rgb([0, level(self.confidence[k]), 0]),
+                TexelSource::Mirrored => Rgb([0, 0, level(self.confidence[k])]),
+                TexelSource::Filled => Rgb([200, 0, 0]),
+            }
+        })
+    }
+}
+
+/// sRGB (0–255) to linear light.
+fn linear_table() -> [f32; 256] {
+    std::array::from_fn(|v| {
+        let c = v as f32 / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    })
+}
+
+fn to_srgb(c: f32) -> u8 {
+    let c = c.clamp(0.0, 1.0);
+    let s = if c <= 0.003_130_8 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0).round() as u8
+}
+
+/// Bilinear colour (linear light) at pixel `p` (`y` down, centres at integers), clamped to
+/// the image.
+fn sample(image: &RgbImage, table: &[f32; 256], p: Point2<Real>) -> [f32; 3] {
+    let (w, h) = (image.width() as i64, image.height() as i64);
+    let (x, y) = (p.x.clamp(0.0, (w - 1) as Real), p.y.clamp(0.0, (h - 1) as Real));
+    let (x0, y0) = (x.floor() as i64, y.floor() as i64);
+    let (fx, fy) = ((x - x0 as Real) as f32, (y - y0 as Real) as f32);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let at = |x: i64, y: i64| image.get_pixel(x as u32, y as u32).0;
+    let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+    std::array::from_fn(|k| {
+        let top = table[a[k] as usize] * (1.0 - fx) + table[b[k] as usize] * fx;
+        let bottom = table[c[k] as usize] * (1.0 - fx) + table[d[k] as usize] * fx;
+        top * (1.0 - fy) + bottom * fy
+    })
+}
+
+/// The atlas's texels: their parameters and whether they lie in the clip region.
+struct Texels {
+    side: usize,
+    params: Vec<[Real; 2]>,
+    inside: Vec<bool>,
+}
+
+impl Texels {
+    fn new(side: usize, clip: &[Point2<Real>]) -> Self {
+        let params: Vec<[Real; 2]> = (0..side * side)
+            .map(|k| {
+                let (c, r) = (k % side, k / side);
+                [
+                    (c as Real + 0.5) / side as Real,
+                    1.0 - (r as Real + 0.5) / side as Real,
+                ]
+            })
+            .collect();
+        let inside = params
+            .par_iter()
+            .map(|&[u, v]| polygon_contains(clip, Point2::new(u, v)))
+            .collect();
+        Texels { side, params, inside }
+    }
+}
+
+/// Unit normals over the texel grid from central differences of its positions (one-sided at
+/// the atlas's edges), oriented as `F_u × F_v` (toward the viewer).
+fn grid_normals(positions: &[Point3<Real>], side: usize) -> Vec<Vector3<Real>> {
+    (0..side * side)
+        .into_par_iter()
+        .map(|k| {
+            let (c, r) = (k % side, k / side);
+            let at = |c: usize, r: usize| positions[r * side + c];
+            let du = at((c + 1).min(side - 1), r) - at(c.saturating_sub(1), r);
+            // Row r − 1 lies at larger v.
+            let dv = at(c, r.saturating_sub(1)) - at(c, (r + 1).min(side - 1));
+            du.cross(&dv).try_normalize(0.0).unwrap_or_else(Vector3::z)
+        })
+        .collect()
+}
+
+/// A depth buffer of a surface in one photo.
+struct DepthBuffer {
+    /// Image position of cell `(0, 0)`'s corner, pixels.
+    origin: Point2<Real>,
+    /// Pixels per cell.
+    cell: Real,
+    width: usize,
+    height: usize,
+    keys: Vec<Real>,
+}
+
+impl DepthBuffer {
+    /// Rasterises the quads of the texel grid every [`OCCLUDER_STRIDE`] texels whose corners
+    /// lie in the clip region, as the camera sees them (`at` gives each texel's image point
+    /// and depth key).
+    fn new(at: &[Option<(Point2<Real>, Real)>], texels: &Texels, image: (u32, u32)) -> Option<Self> {
+        let side = texels.side;
+        let stride = OCCLUDER_STRIDE.min(side.max(2) - 1);
+        let nodes: Vec<usize> = (0..side).step_by(stride).collect();
+        let (mut lo, mut hi) = (
+            Point2::new(Real::INFINITY, Real::INFINITY),
+            Point2::new(Real::NEG_INFINITY, Real::NEG_INFINITY),
+        );
+        for (k, a) in at.iter().enumerate() {
+            if let (Some((p, _)), true) = (a, texels.inside[k]) {
+                lo = lo.inf(p);
+                hi = hi.sup(p);
+            }
+        }
+        if lo.x > hi.x {
+            return None;
+        }
+        // Keep to the photo, and at most 1024 cells along the longer side.
+        lo = lo.sup(&Point2::new(-1.0, -1.0));
+        hi = hi.inf(&Point2::new(Real::from(image.0), Real::from(image.1)));
+        if lo.x >= hi.x || lo.y >= hi.y {
+            return None;
+        }
+        let cell = ((hi.x - lo.x).max(hi.y - lo.y) / 1024.0).max(1.0);
+        let (width, height) = (
+            ((hi.x - lo.x) / cell).ceil() as usize + 1,
+            ((hi.y - lo.y) / cell).ceil() as usize + 1,
+        );
+        let n = nodes.len();
+        let mut pixels = Vec::with_capacity(n * n);
+        let mut keys = Vec::with_capacity(n * n);
+        for &r in &nodes {
+            for &c in &nodes {
+                match at[r * side + c] {
+                    Some((p, key)) => {
+                        pixels.push([(p.x - lo.x) / cell, (p.y - lo.y) / cell]);
+                        keys.push(key);
+                    }
+                    None => {
+                        pixels.push([Real::NAN, Real::NAN]);
+                        keys.push(Real::NEG_INFINITY);
+                    }
+                }
+            }
+        }
+        let mut triangles = Vec::with_capacity(2 * n * n);
+        for i in 0..n.saturating_sub(1) {
+            for j in 0..n - 1 {
+                let corner = |di: usize, dj: usize| (i + di) * n + j + dj;
+                let quad = [corner(0, 0), corner(0, 1), corner(1, 1), corner(1, 0)];
+                let usable = quad.iter().all(|&q| {
+                    let (r, c) = (nodes[q / n], nodes[q % n]);
+                    texels.inside[r * side + c] && keys[q].is_finite()
+                });
+                if usable {
+                    let [a, b, c, d] = quad.map(|q| q as u32);
+                    triangles.push([a, b, c]);
+                    triangles.push([a, c, d]);
+                }
+            }
+        }
+        let (keys_out, _) = crate::render::raster::rasterise(&pixels, &keys, &triangles, width, height);
+        Some(DepthBuffer {
+            origin: lo,
+            cell,
+            width,
+            height,
+            keys: keys_out,
+        })
+    }
+
+    /// The front-most key at image point `p` (NaN where nothing was drawn).
+    fn front(&self, p: Point2<Real>) -> Real {
+        let (x, y) = (
+            ((p.x - self.origin.x) / self.cell).round(),
+            ((p.y - self.origin.y) / self.cell).round(),
+        );
+        if x < 0.0 || y < 0.0 || x as usize >= self.width || y as usize >= self.height {
+            return Real::NAN;
+        }
+        self.keys[y as usize * self.width + x as usize]
+    }
+}
+
+/// One photo's view of the atlas: per texel, its weight and the colour it sees there (linear
+/// light; 0 where the weight is).
+struct PhotoView {
+    weights: Vec<f32>,
+    colours: Vec<[f32; 3]>,
+}
+
+/// The 3-4 chamfer distance (in texels, × 3) from every texel in `region` to the nearest
+/// texel of `region` that is not `set`, capped at `cap`.
+fn distance_to_unset(set: &[bool], region: &[bool], side: usize, cap: u32) -> Vec<u32> {
+    let mut d: Vec<u32> = (0..side * side)
+        .map(|k| if region[k] && !set[k] { 0 } else { cap })
+        .collect();
+    let relax = |d: &mut Vec<u32>, k: usize, j: usize, cost: u32| {
+        let through = d[j].saturating_add(cost);
+        if through < d[k] {
+            d[k] = through;
+        }
+    };
+    for r in 0..side {
+        for c in 0..side {
+            let k = r * side + c;
+            if c > 0 {
+                relax(&mut d, k, k - 1, 3);
+            }
+            if r > 0 {
+                relax(&mut d, k, k - side, 3);
+                if c > 0 {
+                    relax(&mut d, k, k - side - 1, 4);
+                }
+                if c + 1 < side {
+                    relax(&mut d, k, k - side + 1, 4);
+                }
+            }
+        }
+    }
+    for r in (0..side).rev() {
+        for c in (0..side).rev() {
+            let k = r * side + c;
+            if c + 1 < side {
+                relax(&mut d, k, k + 1, 3);
+            }
+            if r + 1 < side {
+                relax(&mut d, k, k + side, 3);
+                if c + 1 < side {
+                    relax(&mut d, k, k + side + 1, 4);
+                }
+                if c > 0 {
+                    relax(&mut d, k, k + side - 1, 4);
+                }
+            }
+        }
+    }
+    d
+}
+
+/// Photo `photo`'s weights over the atlas (see the module documentation).
+fn photo_view(
+    photo: &TexturePhoto<'_>,
+    positions: &[Point3<Real>],
+    normals: &[Vector3<Real>],
+    texels: &Texels,
+    reference_resolution: Real,
+    table: &[f32; 256],
+) -> PhotoView {
+    let n = texels.params.len();
+    let camera = &photo.camera;
+    let (w, h) = (photo.image.width(), photo.image.height());
+    let at: Vec<Option<(Point2<Real>, Real)>> = positions.par_iter().map(|x| camera.image_point(x)).collect();
+    let buffer = DepthBuffer::new(&at, texels, (w, h));
+    let margin = 0.02 * Real::from(w.min(h));
+    let mut weights = vec![0.0f32; n];
+    let mut colours = vec![[0.0f32; 3]; n];
+    weights
+        .par_iter_mut()
+        .zip(colours.par_iter_mut())
+        .enumerate()
+        .for_each(|(k, (weight, colour))| {
+            let (Some((p, key)), true, Some(buffer)) = (at[k], texels.inside[k], &buffer) else {
+                return;
+            };
+            let x = &positions[k];
+            let cos = normals[k].dot(&camera.towards(x));
+            let facing = ((cos - GRAZING) / (1.0 - GRAZING)).clamp(0.0, 1.0);
+            if facing <= 0.0 {
+                return;
+            }
+            let border =
+                p.x.min(p.y)
+                    .min(Real::from(w) - 1.0 - p.x)
+                    .min(Real::from(h) - 1.0 - p.y);
+            if border <= 0.0 {
+                return;
+            }
+            let resolution = camera.resolution(x).unwrap_or(0.0);
+            // The buffer's cell spans `cell / resolution` units; a surface seen at angle θ
+            // changes depth by up to that much times tan θ across it.
+            let slack = 2.0 * buffer.cell / resolution.max(Real::MIN_POSITIVE) / cos.max(0.2);
+            let front = buffer.front(p);
+            if front.is_finite() && key < front - DEPTH_TOLERANCE - slack {
+                return;
+            }
+            let edge = (border / margin.max(1.0)).min(1.0);
+            let sharpness = (resolution / reference_resolution).min(1.0);
+            *weight = (facing * facing * edge * sharpness) as f32;
+            *colour = sample(photo.image, table, p);
+        });
+    // Feather toward the texels the photo does not see.
+    let seen: Vec<bool> = weights.iter().map(|&w| w > 0.0).collect();
+    let reach = (FEATHER * texels.side as Real).max(1.0);
+    let cap = (3.0 * reach).ceil() as u32;
+    let distance = distance_to_unset(&seen, &texels.inside, texels.side, cap);
+    weights.par_iter_mut().zip(&distance).for_each(|(w, &d)| {
+        *w *= ((d as Real / 3.0) / reach).min(1.0) as f32;
+    });
+    PhotoView { weights, colours }
+}
+
+/// Per-photo gains (per channel, in the logarithm) that make the photos agree on the texels
+/// they share: a weighted, Cauchy-reweighted least-squares fit normalised to a weighted
+/// geometric mean of 1 (see the module documentation).
+fn colour_gains(views: &[PhotoView], texels: &Texels) -> Vec<[Real; 3]> {
+    let m = views.len();
+    let mut gains = vec![[1.0; 3]; m];
+    if m < 2 {
+        return gains;
+    }
+    // Shared texels on a grid of at most 128²: (photo, weight, log colour) per view of each.
+    let step = (texels.side / 128).max(1);
+    let mut shared: Vec<(usize, Real, [Real; 3])> = Vec::new();
+    let mut groups: Vec<std::ops::Range<usize>> = Vec::new();
+    for r in (0..texels.side).step_by(step) {
+        for c in (0..texels.side).step_by(step) {
+            let k = r * texels.side + c;
+            let begin = shared.len();
+            for (i, view) in views.iter().enumerate() {
+                let colour = view.colours[k];
+                if view.weights[k] > 0.0 && colour.iter().all(|&v| v > 1.0 / 255.0) {
+                    shared.push((i, view.weights[k] as Real, colour.map(|v| (v as Real).ln())));
+                }
+            }
+            if shared.len() - begin >= 2 {
+                groups.push(begin..shared.len());
+            } else {
+                shared.truncate(begin);
+            }
+        }
+    }
+    if groups.is_empty() {
+        return gains;
+    }
+    let totals: Vec<Real> = views
+        .iter()
+        .map(|v| v.weights.iter().map(|&w| w as Real).sum::<Real>())
+        .collect();
+    let total: Real = totals.iter().sum::<Real>().max(Real::MIN_POSITIVE);
+    const SCALE: Real = 0.1; // the Cauchy scale of a log-colour difference: about 10%
+    let mut x = vec![[0.0 as Real; 3]; m];
+    for _round in 0..3 {
+        let mut a = vec![DMatrix::<Real>::zeros(m, m); 3];
+        let mut b = vec![DVector::<Real>::zeros(m); 3];
+        for group in &groups {
+            let seen = &shared[group.clone()];
+            for (p, &(i, wi, ci)) in seen.iter().enumerate() {
+                for &(j, wj, cj) in &seen[p + 1..] {
+                    for ch in 0..3 {
+                        // x_i − x_j ≈ log c_j − log c_i.
+                        let d = cj[ch] - ci[ch];
+                        let r = x[i][ch] - x[j][ch] - d;
+                        let omega = wi * wj / (1.0 + (r / SCALE).powi(2));
+                        a[ch][(i, i)] += omega;
+                        a[ch][(j, j)] += omega;
+                        a[ch][(i, j)] -= omega;
+                        a[ch][(j, i)] -= omega;
+                        b[ch][i] += omega * d;
+                        b[ch][j] -= omega * d;
+                    }
+                }
+            }
+        }
+        for (ch, (mut a, b)) in a.into_iter().zip(b).enumerate() {
+            // A ridge keeps photos that share nothing with the others at a gain of 1.
+            let ridge = 1e-6 * (a.trace() / m as Real).max(Real::MIN_POSITIVE);
+            for i in 0..m {
+                a[(i, i)] += ridge;
+            }
+            if let Some(solution) = a.cholesky().map(|c| c.solve(&b)) {
+                for i in 0..m {
+                    x[i][ch] = solution[i];
+                }
+            }
+        }
+    }
+    for ch in 0..3 {
+        let mean = (0..m).map(|i| x[i][ch] * totals[i]).sum::<Real>() / total;
+        for i in 0..m {
+            gains[i][ch] = (x[i][ch] - mean).exp();
+        }
+    }
+    gains
+}
+
+/// One texel's blend: its colour (linear light), the largest weight a photo gave it, and
+/// the sum of the powered weights (0 where no photo sees it).
+#[derive(Debug, Clone, Copy, Default)]
+struct Blended {
+    colour: [f32; 3],
+    best: f32,
+    total: f32,
+}
+
+/// `w^p`, by multiplication when `p` is a small whole number.
+fn power(w: Real, p: Real) -> Real {
+    if p == p.round() && (1.0..=16.0).contains(&p) {
+        w.powi(p as i32)
+    } else {
+        w.powf(p)
+    }
+}
+
+/// Push-pull diffusion: fills every texel whose weight is 0 from the weighted colours around
+/// it (a pyramid of weighted 2 × 2 means, each level's holes filled bilinearly from the next
+/// coarser one).
+fn push_pull(colours: &mut [[f32; 3]], known: &[bool], side: usize) {
+    if side <= 1 || known.iter().all(|&k| !k) {
+        return;
+    }
+    let premultiplied: Vec<[f32; 4]> = colours
+        .iter()
+        .zip(known)
+        .map(|(c, &k)| if k { [c[0], c[1], c[2], 1.0] } else { [0.0; 4] })
+        .collect();
+    let filled = fill_level(premultiplied, side);
+    for (k, c) in colours.iter_mut().enumerate() {
+        if !known[k] {
+            let f = filled[k];
+            *c = [f[0], f[1], f[2]];
+        }
+    }
+}
+
+/// One level of [`push_pull`]: `level` holds weight-premultiplied colours and weights; returns
+/// plain colours everywhere.
+fn fill_level(level: Vec<[f32; 4]>, side: usize) -> Vec<[f32; 4]> {
+    let plain = |v: [f32; 4]| {
+        if v[3] > 0.0 {
+            [v[0] / v[3], v[1] / v[3], v[2] / v[3], 1.0]
+        } else {
+            [0.0; 4]
+        }
+    };
+    if side == 1 {
+        return vec![plain(level[0])];
+    }
+    let half = side.div_ceil(2);
+    let mut coarse = vec![[0.0f32; 4]; half * half];
+    for r in 0..side {
+        for c in 0..side {
+            let v = level[r * side + c];
+            let o = &mut coarse[(r / 2) * half + c / 2];
+            for k in 0..4 {
+                o[k] += v[k];
+            }
+        }
+    }
+    for o in &mut coarse {
+        // Weights saturate at 1 so that a well-covered coarse texel counts as fully known.
+        if o[3] > 1.0 {
+            let s = 1.0 / o[3];
+            o.iter_mut().for_each(|v| *v *= s);
+        }
+    }
+    let coarse = fill_level(coarse, half);
+    (0..side * side)
+        .into_par_iter()
+        .map(|k| {
+            let v = level[k];
+            if v[3] >= 1.0 {
+                return plain(v);
+            }
+            let (r, c) = (k / side, k % side);
+            // Bilinear from the coarse level: texel centre c maps to (c + ½)/2 − ½ there.
+            let (y, x) = ((r as f32 + 0.5) / 2.0 - 0.5, (c as f32 + 0.5) / 2.0 - 0.5);
+            let (y0, x0) = (y.floor().max(0.0), x.floor().max(0.0));
+            let (fy, fx) = ((y - y0).clamp(0.0, 1.0), (x - x0).clamp(0.0, 1.0));
+            let (y0, x0) = (y0 as usize, x0 as usize);
+            let (y1, x1) = ((y0 + 1).min(half - 1), (x0 + 1).min(half - 1));
+            let at = |r: usize, c: usize| coarse[r * half + c];
+            let up: [f32; 4] = std::array::from_fn(|k| {
+                let top = at(y0, x0)[k] * (1.0 - fx) + at(y0, x1)[k] * fx;
+                let bottom = at(y1, x0)[k] * (1.0 - fx) + at(y1, x1)[k] * fx;
+                top * (1.0 - fy) + bottom * fy
+            });
+            // A partly known texel keeps its own colour in proportion to its weight.
+            let w = v[3];
+            let own = plain(v);
+            [
+                w * own[0] + (1.0 - w) * up[0],
+                w * own[1] + (1.0 - w) * up[1],
+                w * own[2] + (1.0 - w) * up[2],
+                1.0,
+            ]
+        })
+        .collect()
+}
+
+/// Bakes a texture atlas for `face` from `photos` (see the module documentation).
+///
+/// # Errors
+/// [`FaceError::Option`] for a size outside 16–8192, a sharpness that is not positive and
+/// finite, no photos, an empty photo, or a photo surface whose parameter domain is not the
+/// face's; [`FaceError::Kernel`] if the surface cannot be evaluated.
+pub fn bake_texture(
+    face: &FaceSurface,
+    photos: &[TexturePhoto<'_>],
+    options: &TextureOptions,
+) -> Result<FaceTexture, FaceError> {
+    if !(16..=8192).contains(&options.size) {
+        return Err(FaceError::Option {
+            name: "texture size",
+            value: options.size.to_string(),
+            expected: "16 to 8192 texels",
+        });
+    }
+    if !(options.sharpness > 0.0 && options.sharpness.is_finite()) {
+        return Err(FaceError::Option {
+            name: "texture sharpness",
+            value: options.sharpness.to_string(),
+            expected: "positive and finite",
+        });
+    }
+    if photos.is_empty()
+        || photos
+            .iter()
+            .any(|p| p.image.width() == 0 || p.image.height() == 0)
+    {
+        return Err(FaceError::Option {
+            name: "texture photos",
+            value: format!("{} photo(s)", photos.len()),
+            expected: "at least one photo, none of them empty",
+        });
+    }
+    let domain = |s: &FaceSurface| (s.surface().domain_u(), s.surface().domain_v());
+    if photos
+        .iter()
+        .filter_map(|p| p.surface)
+        .any(|s| domain(s) != domain(face))
+    {
+        return Err(FaceError::Option {
+            name: "texture photo surface",
+            value: "a surface over another parameter domain".to_owned(),
+            expected: "the face's own parameter domain",
+        });
+    }
+    let side = options.size as usize;
+    let texels = Texels::new(side, face.clip());
+    let positions = face.surface().eval_many(&texels.params)?;
+    let normals = grid_normals(&positions, side);
+    let table = linear_table();
+
+    // The median photo's resolution over the face (its centre's).
+    let centre = positions[(side / 2) * side + side / 2];
+    let mut resolutions: Vec<Real> = photos
+        .iter()
+        .map(|p| p.camera.resolution(&centre).unwrap_or(0.0))
+        .collect();
+    resolutions.sort_by(Real::total_cmp);
+    let reference_resolution = resolutions[resolutions.len() / 2].max(Real::MIN_POSITIVE);
+
+    let mut views = Vec::with_capacity(photos.len());
+    for photo in photos {
+        let own;
+        let at = match photo.surface {
+            Some(s) => {
+                own = s.surface().eval_many(&texels.params)?;
+                &own
+            }
+            None => &positions,
+        };
+        views.push(photo_view(
+            photo,
+            at,
+            &normals,
+            &texels,
+            reference_resolution,
+            &table,
+        ));
+    }
+    let gains = if options.match_colours {
+        colour_gains(&views, &texels)
+    } else {
+        vec![[1.0; 3]; photos.len()]
+    };
+
+    // Blend.
+    let p = options.sharpness;
+    let n = side * side;
+    let m = photos.len();
+    let blended: Vec<Blended> = (0..n)
+        .into_par_iter()
+        .map(|k| {
+            let (mut sum, mut total, mut best) = ([0.0 as Real; 3], 0.0 as Real, 0.0f32);
+            for (i, view) in views.iter().enumerate() {
+                let w = view.weights[k];
+                if w <= 0.0 {
+                    continue;
+                }
+                best = best.max(w);
+                let wp = power(w as Real, p);
+                let c = view.colours[k];
+                for ch in 0..3 {
+                    sum[ch] += wp * gains[i][ch] * c[ch] as Real;
+                }
+                total += wp;
+            }
+            if total > 0.0 {
+                Blended {
+                    colour: sum.map(|s| (s / total) as f32),
+                    best,
+                    total: total as f32,
+                }
+            } else {
+                Blended::default()
+            }
+        })
+        .collect();
+    // Each photo's share, summed over fixed chunks in order (the same to the last bit
+    // whatever the number of threads).
+    let partial: Vec<Vec<Real>> = blended
+        .par_chunks(4096)
+        .enumerate()
+        .map(|(c, chunk)| {
+            let mut shares = vec![0.0; m];
+            for (d, b) in chunk.iter().enumerate() {
+                if b.total > 0.0 {
+                    let k = c * 4096 + d;
+                    for (i, view) in views.iter().enumerate() {
+                        shares[i] += power(view.weights[k] as Real, p) / b.total as Real;
+                    }
+                }
+            }
+            shares
+        })
+        .collect();
+    let mut shares = vec![0.0; m];
+    for chunk in &partial {
+        shares.iter_mut().zip(chunk).for_each(|(s, c)| *s += c);
+    }
+    let share_total: Real = shares.iter().sum();
+    let shares: Vec<Real> = shares
+        .into_iter()
+        .map(|s| if share_total > 0.0 { s / share_total } else { 0.0 })
+        .collect();
+
+    let mut colours: Vec<[f32; 3]> = blended.iter().map(|b| b.colour).collect();
+    let mut confidence: Vec<f32> = blended.iter().map(|b| b.best).collect();
+    let mut sources: Vec<TexelSource> = (0..n)
+        .map(|k| match (texels.inside[k], blended[k].total > 0.0) {
+            (false, _) => TexelSource::Outside,
+            (true, true) => TexelSource::Seen,
+            (true, false) => TexelSource::Filled,
+        })
+        .collect();
+    for (c, &inside) in confidence.iter_mut().zip(&texels.inside) {
+        if !inside {
+            *c = 0.0;
+        }
+    }
+    if options.mirror {
+        let frame = face.frame();
+        for k in 0..n {
+            if sources[k] != TexelSource::Filled {
+                continue;
+            }
+            let [u, v] = texels.params[k];
+            let q = frame.position(u, v);
+            let m = frame.parameters(-q.x, q.y);
+            let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+            let r = (((1.0 - m.y) * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+            let j = r * side + c;
+            if sources[j] == TexelSource::Seen {
+                sources[k] = TexelSource::Mirrored;
+                colours[k] = colours[j];
+                confidence[k] = confidence[j];
+            }
+        }
+    }
+    let known: Vec<bool> = sources
+        .iter()
+        .map(|s| matches!(s, TexelSource::Seen | TexelSource::Mirrored))
+        .collect();
+    push_pull(&mut colours, &known, side);
+    let atlas = RgbImage::from_fn(options.size, options.size, |x, y| {
+        Rgb(colours[y as usize * side + x as usize].map(to_srgb))
+    });
+    Ok(FaceTexture {
+        atlas,
+        sources,
+        confidence,
+        gains,
+        shares,
+    })
+}
