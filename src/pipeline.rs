@@ -10,13 +10,16 @@
 //!    kept photos' points ([`crate::face::FaceSpace::fit_photos`]); otherwise, or when the
 //!    reference has no space, the reference grid deformed to the estimated structure, followed
 //!    as far as the evidence allows ([`StructureWeight`]; [`crate::face::shrunk_toward_reference`],
-//!    [`crate::face::FaceSurface::deform`]). Then its clipped mesh, textured from the most
-//!    frontal photo when there are images. With images and [`PipelineOptions::refine`], the
+//!    [`crate::face::FaceSurface::deform`]). Then its clipped mesh, and, with images, a texture
+//!    atlas in the surface's `(u, v)` baked from every photo whose points fit well
+//!    ([`crate::face::bake_texture`]). With images and [`PipelineOptions::refine`], the
 //!    face-space fit is refined by the photos' pixels ([`crate::face::FaceSpace::refine_photos`]:
 //!    the photos are made to agree on what lies at each point of the face). The photo stages
 //!    use the reference as the photo path sees it ([`ReferenceFace::as_seen_in_photos`]).
 //! 4. **Outputs** ([`Reconstruction::files`]), in the chosen units: `face.obj` (+ `face.mtl`,
-//!    `face.png` with a texture), `face.glb`, `face.ply`, `surface.json`, `surface.step`,
+//!    and with images `face.png`, the atlas, `texture-confidence.png` and `turntable.png`),
+//!    `face.glb`, `face.ply` (every mesh with its surface parameters as texture coordinates),
+//!    `surface.json`, `surface.step`,
 //!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, `aligned/*.png` after RASL, and
 //!    `consistency.png` after the refinement.
 //!
@@ -803,6 +806,13 @@ impl Reconstruction {
                     "texture-confidence.png".into(),
                     encode_png(&texture.confidence_image())
                         .map_err(encode_error("texture-confidence.png"))?,
+                ));
+                let turntable = texture
+                    .turntable(&self.mesh)
+                    .map_err(|e| encode_error("turntable.png")(e.to_string()))?;
+                files.push((
+                    "turntable.png".into(),
+                    encode_png(&turntable).map_err(encode_error("turntable.png"))?,
                 ));
             }
             None => {

@@ -36,11 +36,11 @@ use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
 pub use refine::{
-    ConsistencyMap, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement, Window,
+    ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement, Window,
 };
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
-pub use texture::{FaceTexture, TexelSource, TextureOptions, TexturePhoto, bake_texture};
+pub use texture::{FaceTexture, NO_PHOTO, TexelSource, TextureOptions, TexturePhoto, bake_texture};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq)]

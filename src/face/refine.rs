@@ -316,6 +316,21 @@ impl RefinedCamera {
         Some((Point2::new(p.x, -p.y), q.z / den))
     }
 
+    /// How the camera sees the surface point `x` with unit normal `normal` (canonical frame):
+    /// where ([`RefinedCamera::image_point`]), the cosine between the normal and the direction
+    /// to the camera, and the pixels per canonical unit there; `None` behind the camera.
+    pub fn look(&self, x: &Point3<Real>, normal: &Vector3<Real>) -> Option<Look> {
+        let q = self.rotation * x.coords;
+        let den = self.depth_factor(&q)?;
+        let p = self.centre + (self.offset - self.centre + Vector2::new(q.x, q.y) * self.scale) / den;
+        Some(Look {
+            pixel: Point2::new(p.x, -p.y),
+            key: q.z / den,
+            cos: (self.rotation * normal).dot(&self.towards_from(&q)),
+            resolution: self.scale / den,
+        })
+    }
+
     /// The pixels per canonical unit at `x` (the scale magnified by the perspective), or
     /// `None` behind the camera.
     pub fn resolution(&self, x: &Point3<Real>) -> Option<Real> {
@@ -327,11 +342,6 @@ impl RefinedCamera {
     fn depth_factor(&self, q: &Vector3<Real>) -> Option<Real> {
         let den = 1.0 - self.perspective * q.z;
         (den >= 0.2).then_some(den)
-    }
-
-    /// The unit vector from `x` toward the camera, in the canonical frame.
-    pub fn towards(&self, x: &Point3<Real>) -> Vector3<Real> {
-        self.rotation.inverse() * self.towards_from(&(self.rotation * x.coords))
     }
 
     /// The unit vector toward the camera from `q = R X`, in the camera's frame (the camera
@@ -377,6 +387,19 @@ impl RefinedCamera {
             centre: self.centre,
         }
     }
+}
+
+/// How a camera sees a point of a surface ([`RefinedCamera::look`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Look {
+    /// Where, pixels with `y` down.
+    pub pixel: Point2<Real>,
+    /// The depth key of [`RefinedCamera::image_point`] (larger toward the camera).
+    pub key: Real,
+    /// The cosine between the surface's normal and the direction to the camera.
+    pub cos: Real,
+    /// Pixels per canonical unit there.
+    pub resolution: Real,
 }
 
 /// Unknowns per photo: rotation (3), log-scale, offset (2), perspective.

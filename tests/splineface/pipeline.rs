@@ -125,6 +125,13 @@ fn the_library_pipeline_beats_the_mean_face() {
     .unwrap();
     assert_eq!(result.depth.photos.len(), 8);
     assert!(result.rasl.is_some() && result.texture.is_some());
+    // Every photo gave to the texture, and the mesh carries the atlas's coordinates: each
+    // vertex's surface parameters.
+    let texture = result.texture.as_ref().unwrap();
+    assert_eq!(texture.shares.len(), 8);
+    assert!(texture.shares.iter().all(|&s| s > 0.0), "{:?}", texture.shares);
+    let mesh = result.output_mesh();
+    assert_eq!(mesh.texture().unwrap().uvs, result.mesh.params);
     // Poses come back.
     for (fit, pose) in result.depth.photos.iter().zip(&scene.poses) {
         let [yaw, pitch, roll] = fit.pose.yaw_pitch_roll_degrees();
@@ -704,6 +711,8 @@ fn outputs_are_repeatable_across_runs_and_thread_counts() {
         [
             "face.png",
             "face.mtl",
+            "texture-confidence.png",
+            "turntable.png",
             "aligned/sparse.png",
             "aligned/low-rank.png",
         ]
