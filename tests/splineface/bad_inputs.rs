@@ -582,6 +582,10 @@ fn bad_paths_and_flags_fail_cleanly() {
             vec!["--depth-size 99999999 must be between 16 and"],
         ),
         (
+            with_flag("--texture-size", "8"),
+            vec!["--texture-size 8 must be between 16 and 8192"],
+        ),
+        (
             with_flag("--min-photos", "0"),
             vec!["--min-photos must be at least 1"],
         ),
