@@ -46,23 +46,12 @@ use splineface::reference::ReferenceFace;
 
 /// sRGB level (0–255) to linear light.
 fn linear(level: Real) -> Real {
-    let c = level / 255.0;
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
+    Real::from(splineface::render::srgb_to_linear((level / 255.0) as f32))
 }
 
 /// Linear light to an sRGB level (0–255, not rounded).
 fn level(c: Real) -> Real {
-    let c = c.clamp(0.0, 1.0);
-    255.0
-        * if c <= 0.0031308 {
-            12.92 * c
-        } else {
-            1.055 * c.powf(1.0 / 2.4) - 0.055
-        }
+    255.0 * splineface::render::linear_to_srgb(c)
 }
 
 /// The texels compared: atlas index, the truth's colour (linear), the atlas's and the old

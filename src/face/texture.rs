@@ -253,24 +253,11 @@ impl FaceTexture {
 
 /// sRGB (0–255) to linear light.
 fn linear_table() -> [f32; 256] {
-    std::array::from_fn(|v| {
-        let c = v as f32 / 255.0;
-        if c <= 0.04045 {
-            c / 12.92
-        } else {
-            ((c + 0.055) / 1.055).powf(2.4)
-        }
-    })
+    std::array::from_fn(|v| crate::render::srgb_to_linear(v as f32 / 255.0))
 }
 
 fn to_srgb(c: f32) -> u8 {
-    let c = c.clamp(0.0, 1.0);
-    let s = if c <= 0.003_130_8 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    };
-    (s * 255.0).round() as u8
+    (crate::render::linear_to_srgb(Real::from(c)) * 255.0).round() as u8
 }
 
 /// Bilinear colour (linear light) at pixel `p` (`y` down, centres at integers), clamped to

@@ -18,7 +18,9 @@ use crate::Real;
 pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
-pub use photoreal::{Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, render_photo};
+pub use photoreal::{
+    Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, linear_to_srgb, render_photo, srgb_to_linear,
+};
 pub use raster::render_heights;
 pub use write::{
     DepthFileError, draw_text, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis,

@@ -185,7 +185,8 @@ pub struct ColourMap {
     texels: Vec<[f32; 3]>,
 }
 
-fn srgb_to_linear(c: f32) -> f32 {
+/// An sRGB value (0–1) decoded to linear light (the standard's transfer curve).
+pub fn srgb_to_linear(c: f32) -> f32 {
     if c <= 0.04045 {
         c / 12.92
     } else {
@@ -193,7 +194,8 @@ fn srgb_to_linear(c: f32) -> f32 {
     }
 }
 
-fn linear_to_srgb(c: Real) -> Real {
+/// Linear light (clamped to 0–1) encoded as an sRGB value (0–1).
+pub fn linear_to_srgb(c: Real) -> Real {
     let c = c.clamp(0.0, 1.0);
     if c <= 0.0031308 {
         12.92 * c

@@ -222,14 +222,7 @@ fn photos_of_another_exposure_are_matched() {
         // The spread of the atlas's ratio to the pattern (green channel, linear light) over
         // the seen texels: 0 when it is the pattern times one factor.
         let side = t.atlas.width();
-        let linear = |v: u8| {
-            let c = Real::from(v) / 255.0;
-            if c <= 0.04045 {
-                c / 12.92
-            } else {
-                ((c + 0.055) / 1.055).powf(2.4)
-            }
-        };
+        let linear = |v: u8| Real::from(splineface::render::srgb_to_linear(f32::from(v) / 255.0));
         let ratios: Vec<Real> = (0..side * side)
             .filter(|&k| t.sources[k as usize] == TexelSource::Seen)
             .filter_map(|k| {
