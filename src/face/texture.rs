@@ -295,9 +295,25 @@ impl Texels {
                 ]
             })
             .collect();
-        let inside = params
-            .par_iter()
-            .map(|&[u, v]| polygon_contains(clip, Point2::new(u, v)))
+        // Row by row: the even-odd rule of `polygon_contains`, its crossings found once per row.
+        let inside = (0..side)
+            .into_par_iter()
+            .flat_map_iter(|r| {
+                let v = params[r * side][1];
+                let mut crossings: Vec<Real> = (0..clip.len())
+                    .filter_map(|k| {
+                        let (a, b) = (clip[k], clip[(k + 1) % clip.len()]);
+                        ((a.y > v) != (b.y > v)).then(|| a.x + (v - a.y) / (b.y - a.y) * (b.x - a.x))
+                    })
+                    .collect();
+                crossings.sort_by(Real::total_cmp);
+                let params = &params;
+                (0..side).map(move |c| {
+                    let u = params[r * side + c][0];
+                    // Inside when an odd number of crossings lie beyond u.
+                    crossings.iter().filter(|&&x| u < x).count() % 2 == 1
+                })
+            })
             .collect();
         Texels { side, params, inside }
     }

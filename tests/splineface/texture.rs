@@ -348,3 +348,23 @@ fn bad_texture_options_are_refused() {
         Err(FaceError::Option { .. })
     ));
 }
+
+#[test]
+fn the_atlas_is_inside_the_clip_region_exactly_where_the_polygon_test_says() {
+    let face = mean_face();
+    let shots = photos(&face, &[(0.0, 1.0)]);
+    let texture = bake(
+        &face,
+        &shots,
+        &TextureOptions {
+            size: 200,
+            ..TextureOptions::default()
+        },
+    );
+    for (k, source) in texture.sources.iter().enumerate() {
+        let (x, y) = (k % 200, k / 200);
+        let p = nalgebra::Point2::new((x as Real + 0.5) / 200.0, 1.0 - (y as Real + 0.5) / 200.0);
+        let inside = splineface::reference::polygon_contains(face.clip(), p);
+        assert_eq!(*source != TexelSource::Outside, inside, "texel ({x}, {y})");
+    }
+}
