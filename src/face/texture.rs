@@ -48,7 +48,6 @@ use rayon::prelude::*;
 use super::{ClippedMesh, FaceError, FaceSurface, RefinedCamera};
 use crate::Real;
 use crate::mesh::{TextureCoordinates, TriangleMesh};
-use crate::reference::polygon_contains;
 
 /// The depth buffer's grid: one quad every this many texels of the atlas.
 pub const OCCLUDER_STRIDE: usize = 4;
@@ -295,7 +294,7 @@ impl Texels {
                 ]
             })
             .collect();
-        // Row by row: the even-odd rule of `polygon_contains`, its crossings found once per row.
+        // Row by row: the even-odd rule of [`crate::reference::polygon_contains`], its crossings found once per row.
         let inside = (0..side)
             .into_par_iter()
             .flat_map_iter(|r| {
