@@ -671,15 +671,20 @@ fn texture_from_photos(
     let displacement = refinement
         .filter(|r| r.accepted && !r.displacement.is_empty())
         .map(|r| r.displacement.as_slice());
+    let images: Vec<&image::RgbImage> = usable
+        .iter()
+        .map(|&slot| {
+            &inputs[kept[slot]]
+                .image
+                .as_ref()
+                .expect("images were given")
+                .colour
+        })
+        .collect();
     let mut own_faces: Vec<Option<FaceSurface>> = Vec::with_capacity(usable.len());
     let mut cameras = Vec::with_capacity(usable.len());
-    for &slot in &usable {
-        let colour = &inputs[kept[slot]]
-            .image
-            .as_ref()
-            .expect("images were given")
-            .colour;
-        let size = (colour.width(), colour.height());
+    for (&slot, image) in usable.iter().zip(&images) {
+        let size = (image.width(), image.height());
         let camera = match (refinement, space) {
             (Some(r), _) => r.cameras[slot],
             (None, Some((_, fit))) => {
@@ -705,17 +710,13 @@ fn texture_from_photos(
         };
         own_faces.push(own);
     }
-    let photos: Vec<TexturePhoto<'_>> = usable
+    let photos: Vec<TexturePhoto<'_>> = images
         .iter()
-        .zip(&cameras)
+        .zip(cameras)
         .zip(&own_faces)
-        .map(|((&slot, camera), own)| TexturePhoto {
-            image: &inputs[kept[slot]]
-                .image
-                .as_ref()
-                .expect("images were given")
-                .colour,
-            camera: *camera,
+        .map(|((image, camera), own)| TexturePhoto {
+            image,
+            camera,
             surface: own.as_ref(),
         })
         .collect();
@@ -769,7 +770,9 @@ impl Reconstruction {
     /// The face mesh in output units, its texture coordinates the surface parameters (the
     /// texture atlas's coordinates, [`crate::face::texture`]).
     pub fn output_mesh(&self) -> TriangleMesh {
-        FaceTexture::textured_mesh(&self.mesh).transformed(&self.options.units.transform())
+        self.mesh
+            .parameter_textured()
+            .transformed(&self.options.units.transform())
     }
 
     /// Every output file, as `(path relative to the output directory, bytes)`: see the module

@@ -650,11 +650,17 @@ pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
     let mut inside = false;
     for k in 0..polygon.len() {
         let (a, b) = (polygon[k], polygon[(k + 1) % polygon.len()]);
-        if (a.y > p.y) != (b.y > p.y) && p.x < a.x + (p.y - a.y) / (b.y - a.y) * (b.x - a.x) {
+        if edge_crossing(a, b, p.y).is_some_and(|x| p.x < x) {
             inside = !inside;
         }
     }
     inside
+}
+
+/// Where the edge `ab` crosses the line at height `y`, under [`polygon_contains`]'s rule (an
+/// edge counts when exactly one end lies above `y`); `None` when it does not cross.
+pub(crate) fn edge_crossing(a: Point2<Real>, b: Point2<Real>, y: Real) -> Option<Real> {
+    ((a.y > y) != (b.y > y)).then(|| a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x))
 }
 
 /// Builds a reference face from one or more scans (see the module documentation).

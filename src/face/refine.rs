@@ -310,20 +310,10 @@ impl RefinedCamera {
         })
     }
 
-    /// Where the camera sees `x` in its photo, pixels with `y` down (image rows), and the
-    /// point's depth key: `(R X)_z / (1 − κ (R X)_z)`, larger toward the camera and affine in
-    /// the image (so that it may be interpolated linearly over a projected triangle). `None`
-    /// behind the camera (or too near it).
-    pub fn image_point(&self, x: &Point3<Real>) -> Option<(Point2<Real>, Real)> {
-        let q = self.rotation * x.coords;
-        let den = self.depth_factor(&q)?;
-        let p = self.centre + (self.offset - self.centre + Vector2::new(q.x, q.y) * self.scale) / den;
-        Some((Point2::new(p.x, -p.y), q.z / den))
-    }
-
     /// How the camera sees the surface point `x` with unit normal `normal` (canonical frame):
-    /// where ([`RefinedCamera::image_point`]), the cosine between the normal and the direction
-    /// to the camera, and the pixels per canonical unit there; `None` behind the camera.
+    /// where in its photo, how deep, the cosine between the normal and the direction to the
+    /// camera, and the pixels per canonical unit there ([`Look`]); `None` behind the camera
+    /// (or too near it).
     pub fn look(&self, x: &Point3<Real>, normal: &Vector3<Real>) -> Option<Look> {
         let q = self.rotation * x.coords;
         let den = self.depth_factor(&q)?;
@@ -397,9 +387,10 @@ impl RefinedCamera {
 /// How a camera sees a point of a surface ([`RefinedCamera::look`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Look {
-    /// Where, pixels with `y` down.
+    /// Where, in the photo's pixels with `y` down (image rows).
     pub pixel: Point2<Real>,
-    /// The depth key of [`RefinedCamera::image_point`] (larger toward the camera).
+    /// The depth key `(R X)_z / (1 − κ (R X)_z)`: larger toward the camera, and affine in the
+    /// image (so that it may be interpolated linearly over a projected triangle).
     pub key: Real,
     /// The cosine between the surface's normal and the direction to the camera.
     pub cos: Real,

@@ -63,6 +63,18 @@ impl ClippedMesh {
                 Point2::new((q.x / w).clamp(0.0, 1.0), (1.0 - q.y / h).clamp(0.0, 1.0))
             })
             .collect();
+        self.with_vertex_uvs(uvs)
+    }
+
+    /// The mesh with each vertex's surface parameters as its texture coordinates: the
+    /// coordinates of a texture atlas over the surface's `(u, v)`
+    /// ([`crate::face::bake_texture`]).
+    pub fn parameter_textured(&self) -> TriangleMesh {
+        self.with_vertex_uvs(self.params.clone())
+    }
+
+    /// The mesh with one texture coordinate per vertex, indexed like the triangles.
+    fn with_vertex_uvs(&self, uvs: Vec<Point2<Real>>) -> TriangleMesh {
         let texture = TextureCoordinates {
             uvs,
             triangles: self.mesh.triangles().to_vec(),

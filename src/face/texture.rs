@@ -47,7 +47,7 @@ use rayon::prelude::*;
 
 use super::{ClippedMesh, FaceError, FaceSurface, RefinedCamera};
 use crate::Real;
-use crate::mesh::{TextureCoordinates, TriangleMesh};
+use crate::reference::edge_crossing;
 
 /// The depth buffer's grid: one quad every this many texels of the atlas.
 pub const OCCLUDER_STRIDE: usize = 4;
@@ -169,18 +169,6 @@ impl FaceTexture {
         counts
     }
 
-    /// The mesh with texture coordinates: each vertex's surface parameters.
-    pub fn textured_mesh(mesh: &ClippedMesh) -> TriangleMesh {
-        let texture = TextureCoordinates {
-            uvs: mesh.params.clone(),
-            triangles: mesh.mesh.triangles().to_vec(),
-        };
-        mesh.mesh
-            .clone()
-            .with_texture(texture)
-            .expect("one parameter pair in [0, 1]² per vertex, indexed like the triangles")
-    }
-
     /// The textured face from five views in one picture, left to right: yaw −60°, −30°, 0°,
     /// 30° and 60° (as [`crate::depth::Pose`] defines yaw), each `320 × 400` pixels, rendered by
     /// [`crate::render::render_photo`] under a soft light from above the camera.
@@ -191,7 +179,7 @@ impl FaceTexture {
         use crate::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
         const YAWS: [Real; 5] = [-60.0, -30.0, 0.0, 30.0, 60.0];
         const SIZE: (usize, usize) = (320, 400);
-        let textured = Self::textured_mesh(mesh);
+        let textured = mesh.parameter_textured();
         let (mut lo, mut hi) = (textured.positions()[0], textured.positions()[0]);
         for p in textured.positions() {
             lo = lo.inf(p);
@@ -276,46 +264,46 @@ fn sample(image: &RgbImage, table: &[f32; 256], p: Point2<Real>) -> [f32; 3] {
     })
 }
 
-/// The atlas's texels: their parameters and whether they lie in the clip region.
+/// The atlas's texels: its side and whether each texel lies in the clip region.
 struct Texels {
     side: usize,
-    params: Vec<[Real; 2]>,
     inside: Vec<bool>,
 }
 
 impl Texels {
     fn new(side: usize, clip: &[Point2<Real>]) -> Self {
-        let params: Vec<[Real; 2]> = (0..side * side)
-            .map(|k| {
-                let (c, r) = (k % side, k / side);
-                [
-                    (c as Real + 0.5) / side as Real,
-                    1.0 - (r as Real + 0.5) / side as Real,
-                ]
-            })
-            .collect();
-        // Row by row: the even-odd rule of [`crate::reference::polygon_contains`], its crossings found once per row.
+        // Row by row: the even-odd rule of `polygon_contains`, each row's crossings found once.
         let inside = (0..side)
             .into_par_iter()
             .flat_map_iter(|r| {
-                let v = params[r * side][1];
-                let mut crossings: Vec<Real> = (0..clip.len())
-                    .filter_map(|k| {
-                        let (a, b) = (clip[k], clip[(k + 1) % clip.len()]);
-                        ((a.y > v) != (b.y > v)).then(|| a.x + (v - a.y) / (b.y - a.y) * (b.x - a.x))
-                    })
+                let v = texel_centre(side, r, true);
+                let crossings: Vec<Real> = (0..clip.len())
+                    .filter_map(|k| edge_crossing(clip[k], clip[(k + 1) % clip.len()], v))
                     .collect();
-                crossings.sort_by(Real::total_cmp);
-                let params = &params;
                 (0..side).map(move |c| {
-                    let u = params[r * side + c][0];
+                    let u = texel_centre(side, c, false);
                     // Inside when an odd number of crossings lie beyond u.
                     crossings.iter().filter(|&&x| u < x).count() % 2 == 1
                 })
             })
             .collect();
-        Texels { side, params, inside }
+        Texels { side, inside }
     }
+
+    /// The surface parameters `[u, v]` of texel `k` (row-major, row 0 at `v = 1`).
+    fn param(&self, k: usize) -> [Real; 2] {
+        [
+            texel_centre(self.side, k % self.side, false),
+            texel_centre(self.side, k / self.side, true),
+        ]
+    }
+}
+
+/// The parameter of the centre of column (or, with `row`, row) `k` of a `side`-texel atlas:
+/// `(k + ½)/side` along `u`, `1 − (k + ½)/side` along `v`.
+fn texel_centre(side: usize, k: usize, row: bool) -> Real {
+    let t = (k as Real + 0.5) / side as Real;
+    if row { 1.0 - t } else { t }
 }
 
 /// The surface is evaluated every this many texels and interpolated bilinearly between: over
@@ -333,10 +321,14 @@ fn surface_on_texels(
     if nodes.last() != Some(&(side - 1)) {
         nodes.push(side - 1);
     }
-    let centre = |k: usize| (k as Real + 0.5) / side as Real;
     let n = nodes.len();
     let params: Vec<[Real; 2]> = (0..n * n)
-        .map(|k| [centre(nodes[k % n]), 1.0 - centre(nodes[k / n])])
+        .map(|k| {
+            [
+                texel_centre(side, nodes[k % n], false),
+                texel_centre(side, nodes[k / n], true),
+            ]
+        })
         .collect();
     let at_nodes = surface.eval_many(&params)?;
     // Each texel's bracketing nodes and its fraction between them.
@@ -543,7 +535,7 @@ fn photo_view(
     reference_resolution: Real,
     table: &[f32; 256],
 ) -> PhotoView {
-    let n = texels.params.len();
+    let n = texels.side * texels.side;
     let camera = &photo.camera;
     let (w, h) = (photo.image.width(), photo.image.height());
     let looks: Vec<Option<super::Look>> = (0..n)
@@ -978,7 +970,7 @@ pub fn bake_texture(
             if sources[k] != TexelSource::Filled {
                 continue;
             }
-            let [u, v] = texels.params[k];
+            let [u, v] = texels.param(k);
             let q = frame.position(u, v);
             let m = frame.parameters(-q.x, q.y);
             let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;

@@ -40,7 +40,7 @@ fn mean_face() -> FaceSurface {
 /// times `exposure` (in linear light).
 fn photos(face: &FaceSurface, views: &[(Real, Real)]) -> Vec<(image::RgbImage, RefinedCamera)> {
     let clipped = face.mesh(&MeshOptions::default()).unwrap();
-    let mesh = FaceTexture::textured_mesh(&clipped);
+    let mesh = clipped.parameter_textured();
     let map = ColourMap::new(&pattern_image(1024));
     views
         .iter()
@@ -261,7 +261,7 @@ fn photos_of_other_sizes_register_and_a_grey_photo_gives_no_grey() {
     let mut shots = photos(&face, &[(-35.0, 1.0), (0.0, 1.0), (35.0, 1.0)]);
     // The frontal photo twice as large (the same camera at twice the focal length and size).
     let clipped = face.mesh(&MeshOptions::default()).unwrap();
-    let mesh = FaceTexture::textured_mesh(&clipped);
+    let mesh = clipped.parameter_textured();
     let camera = Camera::looking_at_head(
         [0.0, 5.0, 0.0],
         &Point3::new(0.0, -20.0, 10.0),
