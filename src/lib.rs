@@ -47,7 +47,8 @@
 //! * [`detect`]: face detection (SeetaFace, model embedded) and robust landmarking
 //!   ([`detect::landmark_face`]); [`landmarker`]: dlib's 68-point `shape_predictor` in pure
 //!   Rust; [`pipeline`]: the stages chained and every output file;
-//!   [`demo`]: the embedded demo subject and its photos.
+//!   [`demo`]: the embedded demo subject and its photos; [`report`]: per-photo overlays and
+//!   the self-contained `report.html` with the face in a 3D viewer.
 //!
 //! The face front ends feed the kernel a transform; they are built on top of it.
 //!
@@ -79,6 +80,7 @@ pub mod mesh;
 pub mod pipeline;
 pub mod reference;
 pub mod render;
+pub mod report;
 pub mod structure;
 
 /// The scalar type of all geometry.

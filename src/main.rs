@@ -1104,6 +1104,7 @@ fn reconstruct_command(
         }
     }
     let mut inputs = Vec::new();
+    let mut records: Vec<PhotoRecord> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
     let mut warnings: Vec<String> = Vec::new();
     if photo_paths.is_empty() {
@@ -1163,46 +1164,68 @@ fn reconstruct_command(
             let decoded = match splineface::align::decode_photo(path) {
                 Ok(d) => d,
                 Err(e) => {
+                    let reason = e.problem.to_string();
                     skipped.push(e.to_string());
+                    records.push(PhotoRecord::skipped(&stem, None, reason));
                     continue;
                 }
             };
-            let points = match (file, &predictor) {
+            let mut skip = |reason: String, records: &mut Vec<PhotoRecord>| {
+                skipped.push(format!("{}: {reason}", path.display()));
+                records.push(PhotoRecord::skipped(&stem, Some(decoded.to_rgb8()), reason));
+            };
+            let (points, record) = match (file, &predictor) {
                 (Some(file), _) => match read_photo_points(&file) {
-                    Ok(points) => points,
+                    Ok(points) => {
+                        // The file's own points for the overlay (68 or 40), as read.
+                        let raw = splineface::landmarks::read_pts(&file)
+                            .map(|p| p.into_iter().collect())
+                            .unwrap_or_else(|_| points.points.clone());
+                        let record = PhotoRecord {
+                            landmarks: raw,
+                            skipped: None,
+                            ..PhotoRecord::skipped(&stem, None, String::new())
+                        };
+                        (points, record)
+                    }
                     Err(e) => {
-                        skipped.push(format!("{}: its landmarks: {e:#}", path.display()));
+                        skip(format!("its landmarks: {e:#}"), &mut records);
                         continue;
                     }
                 },
                 (None, Some(model)) => match find_landmarks(model, &decoded, &stem) {
-                    Ok((points, note)) => {
-                        if let Some(note) = note {
+                    Ok((points, found)) => {
+                        if let Some(note) = &found.note {
                             progress(&format!("{}: {note}", path.display()));
                             warnings.push(format!("{}: {note}", path.display()));
                         }
-                        points
+                        (points, PhotoRecord::from_detection(&stem, &found))
                     }
                     Err(reason) => {
-                        skipped.push(format!("{}: {reason}", path.display()));
+                        skip(reason, &mut records);
                         continue;
                     }
                 },
                 (None, None) => {
-                    skipped.push(format!(
-                        "{}: no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
-                        path.display(),
-                        landmark_dir.map_or_else(String::new, |d| d.display().to_string())
-                    ));
+                    skip(
+                        format!(
+                            "no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
+                            landmark_dir.map_or_else(String::new, |d| d.display().to_string())
+                        ),
+                        &mut records,
+                    );
                     continue;
                 }
             };
             match PhotoImage::from_dynamic(&decoded) {
-                Ok(image) => inputs.push(Input {
-                    points: PhotoPoints { name: stem, ..points },
-                    image: Some(image),
-                }),
-                Err(e) => skipped.push(format!("{}: {e}", path.display())),
+                Ok(image) => {
+                    inputs.push(Input {
+                        points: PhotoPoints { name: stem, ..points },
+                        image: Some(image),
+                    });
+                    records.push(record);
+                }
+                Err(e) => skip(e.to_string(), &mut records),
             }
         }
     }
@@ -1211,14 +1234,19 @@ fn reconstruct_command(
     }
     if inputs.len() < options.min_photos {
         bail!(
-            "{} usable photo{}, at least {} needed (--min-photos){}",
+            "{} usable photo{}, at least {} needed (--min-photos){}{}",
             inputs.len(),
             if inputs.len() == 1 { "" } else { "s" },
             options.min_photos,
             skipped
                 .iter()
                 .map(|s| format!("\n  skipped {s}"))
-                .collect::<String>()
+                .collect::<String>(),
+            if predictor.is_some() && !photo_paths.is_empty() {
+                "\n  (`splineface landmarks PHOTO... --out DIR` draws what the detector found on each photo)"
+            } else {
+                ""
+            }
         );
     }
     let mut options = options;
@@ -1226,6 +1254,8 @@ fn reconstruct_command(
     let start = std::time::Instant::now();
     let result = reconstruct(&inputs, &reference, &options, progress)?;
     let mut files = result.files()?;
+    progress("drawing the overlays and the report page");
+    let photo_outputs = photo_files(&records, &inputs, Some(&result), &mut warnings);
     if !skipped.is_empty() || !warnings.is_empty() {
         // Record the skipped photos and detection warnings in the report.
         if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
@@ -1237,6 +1267,16 @@ fn reconstruct_command(
             *bytes = serde_json::to_vec_pretty(&report)?;
         }
     }
+    files.extend(photo_outputs);
+    let page = splineface::report::report_page(
+        &files,
+        &splineface::report::PageOptions {
+            title: format!("splineface: {}", out.display()),
+            reconstruction: PathBuf::new(),
+            comparison: None,
+        },
+    );
+    files.push(("report.html".into(), page.into_bytes()));
     write_into(out, &files)?;
     for d in &result.dropped {
         progress(&format!("dropped {}: {}", d.name, d.reason));
@@ -1340,9 +1380,23 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         .into_iter()
         .map(|(p, b)| (Path::new("photos").join(p), b))
         .collect();
+    let records: Vec<PhotoRecord> = scene
+        .inputs
+        .iter()
+        .map(|input| PhotoRecord {
+            landmarks: input.points.points.clone(),
+            skipped: None,
+            ..PhotoRecord::skipped(&input.points.name, None, String::new())
+        })
+        .collect();
+    let mut warnings = Vec::new();
+    let mut reconstruction_files = result.files()?;
+    reconstruction_files.extend(photo_files(&records, &scene.inputs, Some(&result), &mut warnings));
+    for w in &warnings {
+        progress(&format!("warning: {w}"));
+    }
     files.extend(
-        result
-            .files()?
+        reconstruction_files
             .into_iter()
             .map(|(p, b)| (Path::new("reconstruction").join(p), b)),
     );
@@ -1371,6 +1425,15 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         encode(shaded_png(&comparison.reconstruction))?,
     ));
     files.push(("compare/stats.json".into(), serde_json::to_vec_pretty(&stats)?));
+    let page = splineface::report::report_page(
+        &files,
+        &splineface::report::PageOptions {
+            title: format!("splineface demo: {photos} photos of the demo subject"),
+            reconstruction: "reconstruction".into(),
+            comparison: Some("compare".into()),
+        },
+    );
+    files.push(("report.html".into(), page.into_bytes()));
     write_into(out, &files)?;
 
     let s = &comparison.stats;
@@ -1456,18 +1519,141 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         out.display()
     );
     println!("  heatmap    {}/compare/heatmap.png", out.display());
+    println!("  report     {}/report.html", out.display());
     println!("  time       {:.1} s", start.elapsed().as_secs_f64());
     Ok(())
 }
 
 /// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::landmark_subject`]):
-/// its 40 points, and a note when smaller faces were ignored.
+/// its 40 points, and the detector's answer (box, 68 points, a note when smaller faces were
+/// ignored).
 fn find_landmarks(
     model: &splineface::landmarker::ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
-) -> std::result::Result<(PhotoPoints, Option<String>), String> {
+) -> std::result::Result<(PhotoPoints, splineface::detect::LandmarkedFace), String> {
     let found = splineface::detect::landmark_subject(model, image)?;
     let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
-    Ok((points, found.note))
+    Ok((points, found))
+}
+
+/// One photo as read and landmarked: what its overlay and landmark file are made of.
+struct PhotoRecord {
+    /// Its name (the file stem).
+    name: String,
+    /// The photo, kept only when it was skipped (a used photo's is in its [`Input`]).
+    image: Option<image::RgbImage>,
+    /// The detector's box `[x, y, width, height]`, when detected.
+    face_box: Option<[f64; 4]>,
+    /// The landmarks as detected (68) or read from its file (68 or 40), pixels.
+    landmarks: Vec<nalgebra::Point2<f64>>,
+    /// Whether the landmarks were detected (not read from a file).
+    detected: bool,
+    /// Why the photo was skipped, if it was.
+    skipped: Option<String>,
+}
+
+impl PhotoRecord {
+    fn skipped(name: &str, image: Option<image::RgbImage>, reason: String) -> Self {
+        PhotoRecord {
+            name: name.to_owned(),
+            image,
+            face_box: None,
+            landmarks: Vec::new(),
+            detected: false,
+            skipped: Some(reason),
+        }
+    }
+
+    fn from_detection(name: &str, found: &splineface::detect::LandmarkedFace) -> Self {
+        let b = found.face.bbox;
+        PhotoRecord {
+            name: name.to_owned(),
+            image: None,
+            face_box: Some([
+                b.left as f64,
+                b.top as f64,
+                (b.right - b.left + 1) as f64,
+                (b.bottom - b.top + 1) as f64,
+            ]),
+            landmarks: found.ibug.clone(),
+            detected: true,
+            skipped: None,
+        }
+    }
+}
+
+/// `overlays/NAME.png` for every record with a photo ([`splineface::report::draw_overlay`]),
+/// and `landmarks/NAME.pts` for every detected one; the overlays of a reconstruction's
+/// photos carry its fitted points and each photo's fate. A photo whose overlay cannot be
+/// encoded gets a warning instead.
+fn photo_files(
+    records: &[PhotoRecord],
+    inputs: &[Input],
+    result: Option<&splineface::pipeline::Reconstruction>,
+    warnings: &mut Vec<String>,
+) -> Vec<(PathBuf, Vec<u8>)> {
+    use splineface::report::{Overlay, PhotoStatus, draw_overlay};
+    let mut files = Vec::new();
+    for record in records {
+        if record.detected {
+            files.push((
+                Path::new("landmarks").join(format!("{}.pts", record.name)),
+                splineface::landmarks::format_pts(&record.landmarks).into_bytes(),
+            ));
+        }
+        let input = inputs.iter().find(|i| i.points.name == record.name);
+        let image = match (&record.skipped, &record.image, input) {
+            (Some(_), Some(image), _) => image,
+            (
+                None,
+                _,
+                Some(Input {
+                    image: Some(image), ..
+                }),
+            ) => &image.colour,
+            _ => continue, // an undecodable photo, or a points-only run: no picture to draw on
+        };
+        let mut notes = Vec::new();
+        let mut fitted = None;
+        let status = match (&record.skipped, result) {
+            (Some(why), _) => PhotoStatus::Skipped(why.clone()),
+            (None, Some(result)) => {
+                if let Some(d) = result.dropped.iter().find(|d| d.name == record.name) {
+                    PhotoStatus::Dropped(d.reason.clone())
+                } else {
+                    if let Some(slot) = result.photo_fits.iter().position(|f| f.name == record.name) {
+                        let fit = &result.photo_fits[slot];
+                        let [yaw, pitch, roll] = result.depth.photos[slot].pose.yaw_pitch_roll_degrees();
+                        notes.push(format!(
+                            "yaw {yaw:.1}°, pitch {pitch:.1}°, roll {roll:.1}°; the fitted face's points lie {:.1} px RMS from the photo's",
+                            fit.rms_pixels
+                        ));
+                        if let Some(input) = input {
+                            fitted = Some((input.points.points.as_slice(), fit.points.as_slice()));
+                        }
+                    }
+                    PhotoStatus::Used
+                }
+            }
+            (None, None) => PhotoStatus::Used,
+        };
+        if record.detected && record.skipped.is_none() {
+            notes.push(format!("landmarks: landmarks/{}.pts", record.name));
+        }
+        let picture = draw_overlay(&Overlay {
+            image,
+            name: &record.name,
+            status: &status,
+            notes: &notes,
+            face_box: record.face_box,
+            landmarks: &record.landmarks,
+            fitted,
+        });
+        match splineface::export::encode_png(&picture) {
+            Ok(png) => files.push((Path::new("overlays").join(format!("{}.png", record.name)), png)),
+            Err(e) => warnings.push(format!("{}: its overlay could not be encoded: {e}", record.name)),
+        }
+    }
+    files
 }

@@ -296,6 +296,23 @@ pub enum PipelineError {
     },
 }
 
+/// How the face fits one of its photos: the photo's last fitted camera (the refinement's
+/// when it ran, else the face-space fit's, else the depth stage's pose) and the face's 40
+/// points, with the photo's own fitted expression, seen by it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PhotoFit {
+    /// The photo's name.
+    pub name: String,
+    /// Its camera (for a points-only run, the scaled orthographic camera of a 1 × 1 image:
+    /// the principal point does not matter without perspective).
+    pub camera: RefinedCamera,
+    /// The face's 40 points as the camera sees them, pixels with `y` down (`NaN` for a point
+    /// behind the camera).
+    pub points: Vec<nalgebra::Point2<Real>>,
+    /// The RMS distance from the photo's own 40 points, pixels.
+    pub rms_pixels: Real,
+}
+
 /// A finished reconstruction (canonical frame; [`Reconstruction::files`] converts units).
 #[derive(Debug, Clone)]
 pub struct Reconstruction {
@@ -323,6 +340,9 @@ pub struct Reconstruction {
     /// The weight with which the surface follows the estimated structure
     /// ([`PipelineOptions::structure_weight`]), and why.
     pub structure_weight: (Real, String),
+    /// How the face fits each photo it was made from, in the order of
+    /// [`DepthEstimate::photos`].
+    pub photo_fits: Vec<PhotoFit>,
     /// The face space's fit, when the shape came from it ([`Shape::Space`]).
     pub space: Option<crate::face::PhotoSpaceFit>,
     /// The refinement by the photos' pixels, when it ran ([`PipelineOptions::refine`]).
@@ -604,16 +624,17 @@ pub fn reconstruct(
     };
     let mesh = face.mesh(&options.mesh)?;
     timings.push(("surface".to_owned(), surface_start.elapsed().as_secs_f64()));
+    let space_and_fit = space.as_ref().map(|(s, _)| s).zip(space_fit.as_ref());
+    let fits = photo_fits(&inputs, &kept, &depth, space_and_fit, refinement.as_ref())?;
     let (texture, texture_photos) = if with_images {
         progress("baking the texture from the photos");
         let start = Instant::now();
         let baked = texture_from_photos(
             &face,
             reference,
-            &inputs,
-            &kept,
+            (&inputs, &kept, &fits),
             &depth,
-            space.as_ref().map(|(s, _)| s).zip(space_fit.as_ref()),
+            space_and_fit,
             refinement.as_ref(),
             &options.texture,
         )?;
@@ -635,6 +656,7 @@ pub fn reconstruct(
         texture_photos,
         dropped,
         structure_weight: (structure_weight, weight_note),
+        photo_fits: fits,
         space: space_fit,
         refinement,
         shape,
@@ -648,17 +670,75 @@ pub fn reconstruct(
     })
 }
 
+/// How the face fits each kept photo ([`PhotoFit`]): its last fitted camera (the
+/// refinement's when it ran, else the face-space fit's, else the depth stage's pose) and the
+/// face's 40 points on the photo's own face (its fitted expression) seen by it.
+fn photo_fits(
+    inputs: &[&Input],
+    kept: &[usize],
+    depth: &DepthEstimate,
+    space: Option<(&crate::face::FaceSpace, &crate::face::PhotoSpaceFit)>,
+    refinement: Option<&Refinement>,
+) -> Result<Vec<PhotoFit>, PipelineError> {
+    let mut fits = Vec::with_capacity(kept.len());
+    for (slot, &k) in kept.iter().enumerate() {
+        let input = inputs[k];
+        let size = input
+            .image
+            .as_ref()
+            .map_or((1, 1), |i| (i.colour.width(), i.colour.height()));
+        let camera = match (refinement, space) {
+            (Some(r), _) => r.cameras[slot],
+            (None, Some((_, fit))) => {
+                let (pose, offset) = &fit.poses[slot];
+                RefinedCamera::orthographic(pose, *offset, size)
+            }
+            (None, None) => {
+                let photo = &depth.photos[slot];
+                let middle = photo.eye_midpoint;
+                RefinedCamera::orthographic(&photo.pose, nalgebra::Point2::new(middle.x, -middle.y), size)
+            }
+        };
+        let structure = match space {
+            Some((space, fit)) => {
+                let expression = fit.expressions.get(slot).map_or(&[][..], Vec::as_slice);
+                space.structure_with_expression(&fit.weights, expression)?
+            }
+            None => depth.structure.clone(),
+        };
+        let points: Vec<nalgebra::Point2<Real>> = structure
+            .iter()
+            .map(|x| {
+                camera
+                    .pixel(x)
+                    .unwrap_or_else(|| nalgebra::Point2::new(Real::NAN, Real::NAN))
+            })
+            .collect();
+        let squares: Vec<Real> = points
+            .iter()
+            .zip(&input.points.points)
+            .map(|(p, q)| (p - q).norm_squared())
+            .filter(|d| d.is_finite())
+            .collect();
+        let rms_pixels = (squares.iter().sum::<Real>() / squares.len().max(1) as Real).sqrt();
+        fits.push(PhotoFit {
+            name: input.points.name.clone(),
+            camera,
+            points,
+            rms_pixels,
+        });
+    }
+    Ok(fits)
+}
+
 /// The texture atlas of `face` from the kept photos (see [`crate::face::texture`]), or why
-/// there is none. Each photo is seen through its last fitted camera: the refinement's when it
-/// ran, else the face-space fit's, else the depth stage's pose; and on its own face (the
+/// there is none. Each photo is seen through its camera in `fits` and on its own face (the
 /// fitted expression) when the photos were given expressions. Photos whose points fit badly
 /// ([`crate::depth::DepthWarning::BadFit`]) give nothing.
-#[allow(clippy::too_many_arguments)]
 fn texture_from_photos(
     face: &FaceSurface,
     reference: &ReferenceFace,
-    inputs: &[&Input],
-    kept: &[usize],
+    (inputs, kept, fits): (&[&Input], &[usize], &[PhotoFit]),
     depth: &DepthEstimate,
     space: Option<(&crate::face::FaceSpace, &crate::face::PhotoSpaceFit)>,
     refinement: Option<&Refinement>,
@@ -682,22 +762,7 @@ fn texture_from_photos(
         })
         .collect();
     let mut own_faces: Vec<Option<FaceSurface>> = Vec::with_capacity(usable.len());
-    let mut cameras = Vec::with_capacity(usable.len());
-    for (&slot, image) in usable.iter().zip(&images) {
-        let size = (image.width(), image.height());
-        let camera = match (refinement, space) {
-            (Some(r), _) => r.cameras[slot],
-            (None, Some((_, fit))) => {
-                let (pose, offset) = &fit.poses[slot];
-                RefinedCamera::orthographic(pose, *offset, size)
-            }
-            (None, None) => {
-                let photo = &depth.photos[slot];
-                let middle = photo.eye_midpoint;
-                RefinedCamera::orthographic(&photo.pose, nalgebra::Point2::new(middle.x, -middle.y), size)
-            }
-        };
-        cameras.push(camera);
+    for &slot in &usable {
         let own = match space {
             Some((space, fit)) if !fit.expression_names.is_empty() => {
                 let own = space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?;
@@ -710,13 +775,13 @@ fn texture_from_photos(
         };
         own_faces.push(own);
     }
-    let photos: Vec<TexturePhoto<'_>> = images
+    let photos: Vec<TexturePhoto<'_>> = usable
         .iter()
-        .zip(cameras)
+        .zip(&images)
         .zip(&own_faces)
-        .map(|((image, camera), own)| TexturePhoto {
+        .map(|((&slot, image), own)| TexturePhoto {
             image,
-            camera,
+            camera: fits[slot].camera,
             surface: own.as_ref(),
         })
         .collect();
@@ -901,7 +966,8 @@ impl Reconstruction {
             .depth
             .photos
             .iter()
-            .map(|p| {
+            .zip(&self.photo_fits)
+            .map(|(p, fit)| {
                 let [yaw, pitch, roll] = p.pose.yaw_pitch_roll_degrees();
                 json!({
                     "name": p.name,
@@ -911,6 +977,7 @@ impl Reconstruction {
                     "pixels_per_unit": p.pose.scale / scale,
                     "rms_pixels": p.rms_pixels,
                     "rms_units": p.rms_units * scale,
+                    "fit_rms_pixels": fit.rms_pixels,
                 })
             })
             .collect();

@@ -30,7 +30,7 @@ use splineface::depth::{DepthOptions, FrontalFreedom};
 use splineface::face::{Deformation, FaceSurface, MeshOptions, Units};
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, Shape, reconstruct};
 use splineface::reference::ReferenceFace;
-use splineface::render::{View, draw_text, synthetic_photo};
+use splineface::render::{TextStyle, View, draw_text, synthetic_photo, text_width};
 
 struct Args {
     quick: bool,
@@ -383,20 +383,17 @@ fn plot(series: &[Series], path: &std::path::Path) -> Result<()> {
             dot(px(p.0), py(p.1), *colour, 3);
         }
     }
+    let style = TextStyle::white(15.0);
     for p in &series[0].0 {
-        draw_text(
-            &mut image,
-            &format!("{}", p.0),
-            px(p.0) as u32 - 4,
-            bottom as u32 + 10,
-            2,
-        );
+        let label = format!("{}", p.0);
+        let x = px(p.0) as f32 - text_width(&label, style.size) / 2.0;
+        draw_text(&mut image, &label, x, bottom as f32 + 6.0, style);
     }
     for k in 0..=4 {
         let y = y1 * k as Real / 4.0;
-        draw_text(&mut image, &format!("{y:.1}"), 10, py(y) as u32 - 5, 2);
+        draw_text(&mut image, &format!("{y:.1}"), 8.0, py(y) as f32 - 9.0, style);
     }
-    draw_text(&mut image, "mm", 10, 2, 2);
+    draw_text(&mut image, "mm", 8.0, 2.0, style);
     image.save(path)?;
     Ok(())
 }

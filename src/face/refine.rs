@@ -326,6 +326,12 @@ impl RefinedCamera {
         })
     }
 
+    /// Where the camera sees `x` in its photo (pixels, `y` down: image rows), or `None`
+    /// behind the camera: [`RefinedCamera::look`]'s pixel.
+    pub fn pixel(&self, x: &Point3<Real>) -> Option<Point2<Real>> {
+        self.look(x, &Vector3::z()).map(|look| look.pixel)
+    }
+
     /// The pixels per canonical unit at `x` (the scale magnified by the perspective), or
     /// `None` behind the camera.
     pub fn resolution(&self, x: &Point3<Real>) -> Option<Real> {

@@ -10,6 +10,7 @@
 mod photo;
 mod photoreal;
 pub(crate) mod raster;
+mod text;
 mod write;
 
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
@@ -22,9 +23,8 @@ pub use photoreal::{
     Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, linear_to_srgb, render_photo, srgb_to_linear,
 };
 pub use raster::render_heights;
-pub use write::{
-    DepthFileError, draw_text, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis,
-};
+pub use text::{TextStyle, draw_text, line_height, text_width, wrap_text};
+pub use write::{DepthFileError, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis};
 
 /// A viewing direction: the rotation applied to the mesh before looking along `−z`.
 #[derive(Debug, Clone, Copy, PartialEq)]

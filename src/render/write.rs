@@ -160,56 +160,10 @@ pub fn viridis(t: Real) -> [u8; 3] {
     [mix(0), mix(1), mix(2)]
 }
 
-/// 3 × 5 glyphs for the colour bar's labels, one row per `u8` (3 low bits, left to right).
-fn glyph(c: char) -> Option<[u8; 5]> {
-    Some(match c {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '.' => [0, 0, 0, 0, 2],
-        '-' => [0, 0, 7, 0, 0],
-        'm' => [0, 0, 7, 7, 5],
-        ' ' => [0, 0, 0, 0, 0],
-        _ => return None,
-    })
-}
-
-/// Draws `text` in white with a 3 × 5 bitmap font (digits, `.`, `-`, `m` and spaces; other
-/// characters are skipped) at `(x, y)`, each font pixel `scale` image pixels: labels for
-/// heatmaps and plots without a font file.
-pub fn draw_text(image: &mut image::RgbImage, text: &str, x: u32, y: u32, scale: u32) {
-    let mut cursor = x;
-    for c in text.chars() {
-        let Some(rows) = glyph(c) else { continue };
-        for (r, bits) in rows.iter().enumerate() {
-            for col in 0..3u32 {
-                if bits & (4 >> col) != 0 {
-                    for dy in 0..scale {
-                        for dx in 0..scale {
-                            let (px, py) = (cursor + col * scale + dx, y + r as u32 * scale + dy);
-                            if px < image.width() && py < image.height() {
-                                image.put_pixel(px, py, image::Rgb([255, 255, 255]));
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        cursor += 4 * scale;
-    }
-}
-
 /// A heatmap of per-pixel values (row-major from the bottom row, `NaN` = no value, drawn dark
 /// grey) as an RGB PNG, viridis from 0 to `max`, with a colour bar on the right labelled with
-/// 0, `max`/2 and `max` followed by `unit` (digits, `.`, `-`, `m` and spaces are drawn; other
-/// characters are skipped).
+/// 0, `max`/2 and `max` followed by `unit`, in DejaVu Sans ([`super::text`]) about a 28th of
+/// the map's height (12 to 28 pixels).
 ///
 /// # Errors
 /// A message for a size mismatch or a `max` that is not positive and finite.
@@ -231,10 +185,27 @@ pub fn heatmap_png(
             "heatmap scale {max} must be positive and finite"
         )));
     }
-    let scale = ((height as u32) / 160).max(1);
-    let bar = 16 * scale;
-    let label = 4 * scale * 10;
-    let total = width as u32 + 3 * bar + label;
+    let size = (height as f32 / 28.0).clamp(12.0, 28.0);
+    let digits = if max >= 10.0 {
+        1
+    } else if max >= 1.0 {
+        2
+    } else {
+        3
+    };
+    let labels: Vec<(Real, String)> = [1.0, 0.5, 0.0]
+        .iter()
+        .map(|&t| {
+            let text = format!("{:.digits$} {unit}", t * max);
+            (t, text.trim_end().to_owned())
+        })
+        .collect();
+    let widest = labels
+        .iter()
+        .map(|(_, text)| super::text::text_width(text, size))
+        .fold(0.0f32, f32::max);
+    let bar = (size * 1.2).round() as u32;
+    let total = width as u32 + 2 * bar + (widest + size).ceil() as u32;
     let mut image = image::RgbImage::from_pixel(total, height as u32, image::Rgb([30, 30, 30]));
     for y in 0..height {
         let j = height - 1 - y;
@@ -245,31 +216,23 @@ pub fn heatmap_png(
             }
         }
     }
-    let (top, bottom) = (
-        8 * scale,
-        (height as u32).saturating_sub(8 * scale).max(8 * scale + 1),
-    );
-    let x0 = width as u32 + bar;
+    // The bar runs from half a line below the top to half a line above the bottom, so that
+    // each label can be centred on its value.
+    let margin = ((size * 0.6).ceil() as u32).min(height as u32 / 4);
+    let (top, bottom) = (margin, (height as u32).saturating_sub(margin).max(margin + 1));
+    let x0 = width as u32 + bar / 2;
     for y in top..bottom {
         let t = 1.0 - (y - top) as Real / (bottom - 1 - top).max(1) as Real;
         for x in x0..x0 + bar {
             image.put_pixel(x, y, image::Rgb(viridis(t)));
         }
     }
-    let text_x = x0 + bar + 2 * scale;
-    for (t, y) in [(1.0, top), (0.5, (top + bottom) / 2), (0.0, bottom - 1)] {
-        let y = y
-            .saturating_sub(2 * scale)
-            .min(height as u32 - 5 * scale.min(height as u32 / 5));
-        let value = t * max;
-        let digits = if max >= 10.0 {
-            1
-        } else if max >= 1.0 {
-            2
-        } else {
-            3
-        };
-        draw_text(&mut image, &format!("{value:.digits$} {unit}"), text_x, y, scale);
+    let text_x = (x0 + bar) as f32 + size * 0.4;
+    let style = super::text::TextStyle::white(size);
+    let ascent = size * 0.76; // DejaVu's cap height is about 0.73 of the size
+    for (t, text) in &labels {
+        let y = top as f32 + (1.0 - *t as f32) * (bottom - 1 - top) as f32;
+        super::text::draw_text(&mut image, text, text_x, y - ascent / 2.0 - size * 0.2, style);
     }
     encode_rgb(image)
 }

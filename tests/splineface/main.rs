@@ -27,5 +27,6 @@ mod rasl;
 mod reference;
 mod refine;
 mod render;
+mod report_page;
 mod structure;
 mod texture;
