@@ -119,6 +119,27 @@ enum Command {
         #[command(flatten)]
         output: OutputArgs,
     },
+    /// Detect the face in each photo and find its 68 landmarks: writes `NAME.pts` (iBUG,
+    /// readable back by `reconstruct --landmarks DIR`), with `--json` also `NAME.json` (the
+    /// project's landmark JSON), and `overlays/NAME.png` (the photo with the face box and the
+    /// points, or why none were found).
+    Landmarks {
+        /// Photos (JPEG, PNG, BMP, TIFF, WebP).
+        photos: Vec<PathBuf>,
+        /// A directory of photos (every image file in it, by name).
+        #[arg(long = "photos")]
+        photo_dir: Option<PathBuf>,
+        /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
+        /// downloads it). Default: $SPLINEFACE_LANDMARK_MODEL.
+        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
+        landmark_model: Option<PathBuf>,
+        /// The directory to write into (created if missing).
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write each photo's landmarks as landmark JSON (`NAME.json`).
+        #[arg(long)]
+        json: bool,
+    },
     /// Run the whole pipeline on the embedded demo subject: render a dozen photos of it under
     /// varied poses, reconstruct the face and compare it with the truth.
     #[command(allow_negative_numbers = true)]
@@ -405,6 +426,19 @@ fn run(cli: Cli) -> Result<()> {
             landmark_model.as_deref(),
             &out,
             &output,
+        ),
+        Command::Landmarks {
+            photos,
+            photo_dir,
+            landmark_model,
+            out,
+            json,
+        } => landmarks_command(
+            &photos,
+            photo_dir.as_deref(),
+            landmark_model.as_deref(),
+            &out,
+            json,
         ),
         Command::Demo {
             out,
@@ -1094,15 +1128,7 @@ fn reconstruct_command(
         }
         None => ReferenceFace::embedded().clone(),
     };
-    let mut photo_paths = photos.to_vec();
-    if let Some(dir) = photo_dir {
-        photo_paths.extend(files_in(dir, &IMAGE_EXTENSIONS)?);
-    }
-    for p in &photo_paths {
-        if !p.exists() {
-            bail!("{}: no such file", p.display());
-        }
-    }
+    let photo_paths = photo_list(photos, photo_dir)?;
     let mut inputs = Vec::new();
     let mut records: Vec<PhotoRecord> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
@@ -1147,10 +1173,7 @@ fn reconstruct_command(
         // names them): a second photo with a stem already taken is skipped.
         let mut stems: std::collections::BTreeMap<String, &Path> = std::collections::BTreeMap::new();
         for path in &photo_paths {
-            let stem = path
-                .file_stem()
-                .map(|s| s.to_string_lossy().into_owned())
-                .unwrap_or_default();
+            let stem = photo_stem(path);
             if let Some(first) = stems.get(&stem) {
                 skipped.push(format!(
                     "{}: {} has the same name `{stem}` (photos are matched to landmark files by name)",
@@ -1255,7 +1278,13 @@ fn reconstruct_command(
     let result = reconstruct(&inputs, &reference, &options, progress)?;
     let mut files = result.files()?;
     progress("drawing the overlays and the report page");
-    let photo_outputs = photo_files(&records, &inputs, Some(&result), &mut warnings);
+    let photo_outputs = photo_files(
+        &records,
+        Path::new("landmarks"),
+        &inputs,
+        Some(&result),
+        &mut warnings,
+    );
     if !skipped.is_empty() || !warnings.is_empty() {
         // Record the skipped photos and detection warnings in the report.
         if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
@@ -1391,7 +1420,13 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
         .collect();
     let mut warnings = Vec::new();
     let mut reconstruction_files = result.files()?;
-    reconstruction_files.extend(photo_files(&records, &scene.inputs, Some(&result), &mut warnings));
+    reconstruction_files.extend(photo_files(
+        &records,
+        Path::new("landmarks"),
+        &scene.inputs,
+        Some(&result),
+        &mut warnings,
+    ));
     for w in &warnings {
         progress(&format!("warning: {w}"));
     }
@@ -1524,6 +1559,122 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     Ok(())
 }
 
+/// The photos named on the command line and in `--photos DIR`, each checked to exist.
+fn photo_list(photos: &[PathBuf], photo_dir: Option<&Path>) -> Result<Vec<PathBuf>> {
+    let mut paths = photos.to_vec();
+    if let Some(dir) = photo_dir {
+        paths.extend(files_in(dir, &IMAGE_EXTENSIONS)?);
+    }
+    for p in &paths {
+        if !p.exists() {
+            bail!("{}: no such file", p.display());
+        }
+    }
+    Ok(paths)
+}
+
+/// The file stem of a photo, its name in every output.
+fn photo_stem(path: &Path) -> String {
+    path.file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+fn landmarks_command(
+    photos: &[PathBuf],
+    photo_dir: Option<&Path>,
+    landmark_model: Option<&Path>,
+    out: &Path,
+    json: bool,
+) -> Result<()> {
+    let paths = photo_list(photos, photo_dir)?;
+    if paths.is_empty() {
+        bail!("no photos: give PHOTO... or --photos DIR");
+    }
+    let Some(model_path) = landmark_model else {
+        bail!(
+            "--landmark-model PATH is needed (dlib's shape_predictor_68_face_landmarks.dat; tools/fetch-models \
+             downloads it), or set SPLINEFACE_LANDMARK_MODEL"
+        );
+    };
+    check_output_dir(out)?;
+    progress(&format!("reading the landmark model {}", model_path.display()));
+    let model = splineface::landmarker::ShapePredictor::read(model_path)?;
+    let mut records: Vec<PhotoRecord> = Vec::new();
+    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
+    let mut lines: Vec<String> = Vec::new();
+    let mut found_any = false;
+    for path in &paths {
+        let stem = photo_stem(path);
+        if records.iter().any(|r| r.name == stem) {
+            lines.push(format!(
+                "{}: skipped: another photo has the name `{stem}`",
+                path.display()
+            ));
+            continue;
+        }
+        let decoded = match splineface::align::decode_photo(path) {
+            Ok(d) => d,
+            Err(e) => {
+                lines.push(format!("{}: skipped: {}", path.display(), e.problem));
+                continue;
+            }
+        };
+        progress(&format!("landmarking {}", path.display()));
+        match find_landmarks(&model, &decoded, &stem) {
+            Ok((_, found)) => {
+                found_any = true;
+                let b = found.face.bbox;
+                let mut line = format!(
+                    "{}: 68 points, face box {}×{} at ({}, {}), mirror disagreement {:.1}% of the eye width",
+                    path.display(),
+                    b.right - b.left + 1,
+                    b.bottom - b.top + 1,
+                    b.left,
+                    b.top,
+                    100.0 * found.disagreement
+                );
+                if let Some(note) = &found.note {
+                    line.push_str(&format!("; {note}"));
+                }
+                lines.push(line);
+                if json {
+                    let landmarks = splineface::landmarks::Landmarks {
+                        scheme: splineface::landmarks::Scheme::Ibug68,
+                        points: splineface::landmarks::LandmarkPoints::Planar(found.ibug.clone()),
+                    };
+                    let text = splineface::landmarks::format_landmarks_json(&landmarks)
+                        .with_context(|| format!("{}: its landmarks", path.display()))?;
+                    files.push((PathBuf::from(format!("{stem}.json")), text.into_bytes()));
+                }
+                records.push(PhotoRecord {
+                    image: Some(decoded.to_rgb8()),
+                    ..PhotoRecord::from_detection(&stem, &found)
+                });
+            }
+            Err(reason) => {
+                lines.push(format!("{}: skipped: {reason}", path.display()));
+                records.push(PhotoRecord::skipped(&stem, Some(decoded.to_rgb8()), reason));
+            }
+        }
+    }
+    if !found_any {
+        bail!(
+            "no photo gave landmarks:{}",
+            lines.iter().map(|l| format!("\n  {l}")).collect::<String>()
+        );
+    }
+    let mut warnings = Vec::new();
+    // The `.pts` files at the top, so that `reconstruct --landmarks DIR` reads them.
+    files.extend(photo_files(&records, Path::new(""), &[], None, &mut warnings));
+    write_into(out, &files)?;
+    println!("{}", out.display());
+    for line in lines.iter().chain(&warnings) {
+        println!("  {line}");
+    }
+    Ok(())
+}
+
 /// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::landmark_subject`]):
 /// its 40 points, and the detector's answer (box, 68 points, a note when smaller faces were
 /// ignored).
@@ -1541,7 +1692,7 @@ fn find_landmarks(
 struct PhotoRecord {
     /// Its name (the file stem).
     name: String,
-    /// The photo, kept only when it was skipped (a used photo's is in its [`Input`]).
+    /// The photo, when the record keeps it (a reconstructed photo's is in its [`Input`]).
     image: Option<image::RgbImage>,
     /// The detector's box `[x, y, width, height]`, when detected.
     face_box: Option<[f64; 4]>,
@@ -1584,11 +1735,12 @@ impl PhotoRecord {
 }
 
 /// `overlays/NAME.png` for every record with a photo ([`splineface::report::draw_overlay`]),
-/// and `landmarks/NAME.pts` for every detected one; the overlays of a reconstruction's
+/// and `NAME.pts` in `landmark_folder` for every detected one; the overlays of a reconstruction's
 /// photos carry its fitted points and each photo's fate. A photo whose overlay cannot be
 /// encoded gets a warning instead.
 fn photo_files(
     records: &[PhotoRecord],
+    landmark_folder: &Path,
     inputs: &[Input],
     result: Option<&splineface::pipeline::Reconstruction>,
     warnings: &mut Vec<String>,
@@ -1598,20 +1750,18 @@ fn photo_files(
     for record in records {
         if record.detected {
             files.push((
-                Path::new("landmarks").join(format!("{}.pts", record.name)),
+                landmark_folder.join(format!("{}.pts", record.name)),
                 splineface::landmarks::format_pts(&record.landmarks).into_bytes(),
             ));
         }
         let input = inputs.iter().find(|i| i.points.name == record.name);
-        let image = match (&record.skipped, &record.image, input) {
-            (Some(_), Some(image), _) => image,
-            (
-                None,
-                _,
-                Some(Input {
-                    image: Some(image), ..
-                }),
-            ) => &image.colour,
+        let image = match (
+            &record.image,
+            &record.skipped,
+            input.and_then(|i| i.image.as_ref()),
+        ) {
+            (Some(image), _, _) => image,
+            (None, None, Some(photo)) => &photo.colour,
             _ => continue, // an undecodable photo, or a points-only run: no picture to draw on
         };
         let mut notes = Vec::new();
@@ -1636,10 +1786,13 @@ fn photo_files(
                     PhotoStatus::Used
                 }
             }
-            (None, None) => PhotoStatus::Used,
+            (None, None) => PhotoStatus::Landmarked,
         };
         if record.detected && record.skipped.is_none() {
-            notes.push(format!("landmarks: landmarks/{}.pts", record.name));
+            notes.push(format!(
+                "landmarks: {}",
+                landmark_folder.join(format!("{}.pts", record.name)).display()
+            ));
         }
         let picture = draw_overlay(&Overlay {
             image,

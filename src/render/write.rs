@@ -162,7 +162,7 @@ pub fn viridis(t: Real) -> [u8; 3] {
 
 /// A heatmap of per-pixel values (row-major from the bottom row, `NaN` = no value, drawn dark
 /// grey) as an RGB PNG, viridis from 0 to `max`, with a colour bar on the right labelled with
-/// 0, `max`/2 and `max` followed by `unit`, in DejaVu Sans ([`super::text`]) about a 28th of
+/// 0, `max`/2 and `max` followed by `unit`, in DejaVu Sans ([`super::draw_text`]) about a 28th of
 /// the map's height (12 to 28 pixels).
 ///
 /// # Errors

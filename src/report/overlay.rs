@@ -18,6 +18,8 @@ pub const MIN_SIDE: u32 = 480;
 /// What became of a photo.
 #[derive(Debug, Clone, PartialEq)]
 pub enum PhotoStatus {
+    /// Landmarked, with no reconstruction (`splineface landmarks`).
+    Landmarked,
     /// The reconstruction used it.
     Used,
     /// Landmarked, then left out by the reconstruction, for this reason.
@@ -101,11 +103,12 @@ pub fn draw_overlay(overlay: &Overlay<'_>) -> RgbImage {
     };
 
     // The caption: title, status, notes and legend, wrapped to the photo's width.
-    let size = (w as f32 / 50.0).clamp(13.0, 20.0);
+    let size = (w as f32 / 40.0).clamp(14.0, 22.0);
     let line = line_height(size).ceil();
     let pad = (size * 0.6).round();
     let text_width = w as f32 - 2.0 * pad;
     let (status_text, status_colour) = match overlay.status {
+        PhotoStatus::Landmarked => ("landmarked".to_owned(), [120, 230, 120]),
         PhotoStatus::Used => ("used".to_owned(), [120, 230, 120]),
         PhotoStatus::Dropped(why) => (format!("dropped: {why}"), [255, 190, 70]),
         PhotoStatus::Skipped(why) => (format!("skipped: {why}"), [255, 110, 100]),

@@ -443,6 +443,40 @@ fn bad_paths_and_flags_fail_cleanly() {
     };
     let mut cases: Vec<(Vec<String>, Vec<&str>)> = vec![
         (
+            args(&["landmarks", &at("a-file"), "--out", &at("out")]),
+            vec!["--landmark-model PATH is needed"],
+        ),
+        (
+            args(&["landmarks", &at("missing.png"), "--out", &at("out")]),
+            vec!["missing.png: no such file"],
+        ),
+        (
+            args(&["landmarks", "--out", &at("out")]),
+            vec!["no photos: give PHOTO... or --photos DIR"],
+        ),
+        (
+            args(&[
+                "landmarks",
+                &at("a-file"),
+                "--landmark-model",
+                &at("folder.obj"),
+                "--out",
+                &at("out"),
+            ]),
+            vec!["folder.obj", "it is a directory, not a file"],
+        ),
+        (
+            args(&[
+                "landmarks",
+                &at("a-file"),
+                "--landmark-model",
+                &at("a-file"),
+                "--out",
+                &at("a-file/sub"),
+            ]),
+            vec!["a-file/sub: cannot be created"],
+        ),
+        (
             args(&["render-depth", &at("folder.obj"), "--out", &at("o.exr")]),
             vec!["folder.obj: it is a directory, not a file"],
         ),

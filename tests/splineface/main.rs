@@ -27,6 +27,7 @@ mod rasl;
 mod reference;
 mod refine;
 mod render;
+mod report;
 mod report_page;
 mod structure;
 mod texture;

@@ -177,6 +177,16 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     for name in OUTPUTS {
         assert!(demo.join("reconstruction").join(name).is_file(), "{name}");
     }
+    // The page, and an overlay per photo (the demo's points are given, not detected: no
+    // landmarks/).
+    assert!(demo.join("report.html").is_file());
+    for k in 1..=6 {
+        assert!(
+            demo.join(format!("reconstruction/overlays/photo{k:02}.png"))
+                .is_file()
+        );
+    }
+    assert!(!demo.join("reconstruction/landmarks").exists());
     let stats: serde_json::Value =
         serde_json::from_slice(&std::fs::read(demo.join("compare/stats.json")).unwrap()).unwrap();
     let ours = stats["depth_error"]["mean"].as_f64().unwrap();
@@ -198,7 +208,10 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
         &s(&out),
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    for name in OUTPUTS.iter().chain(&["face.mtl", "face.png"]) {
+    for name in OUTPUTS
+        .iter()
+        .chain(&["face.mtl", "face.png", "report.html", "overlays/photo06.png"])
+    {
         assert!(out.join(name).is_file(), "{name}");
     }
     let structure: serde_json::Value =
@@ -224,7 +237,11 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(
-        out.join("face.obj").is_file() && !out.join("face.png").exists() && !out.join("aligned").exists()
+        out.join("face.obj").is_file()
+            && !out.join("face.png").exists()
+            && !out.join("aligned").exists()
+            && !out.join("overlays").exists()
+            && out.join("report.html").is_file()
     );
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
@@ -583,6 +600,82 @@ fn reconstruct_detects_and_landmarks_faces() {
         "{warnings}"
     );
     assert!(out.join("face.glb").is_file());
+    // An overlay for every photo that decodes, used or skipped; the truncated file has none
+    // (its reason is in the report and on the page).
+    let names = |dir: &Path| -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(
+        names(&out.join("overlays")),
+        [
+            "bald_guys.png",
+            "dogs.png",
+            "tom-mirrored.png",
+            "tom-with-a-small-face.png",
+            "tom.png",
+            "two-toms.png"
+        ]
+    );
+    let page = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(
+        page.contains("no face found") && page.contains("truncated"),
+        "the page names the skipped photos"
+    );
+    // The detected landmarks as .pts, read back by --landmarks: the same points, so the same
+    // face.
+    assert_eq!(
+        names(&out.join("landmarks")),
+        ["tom-mirrored.pts", "tom-with-a-small-face.pts", "tom.pts"]
+    );
+    for name in &used {
+        let points =
+            splineface::landmarks::read_pts(&out.join("landmarks").join(format!("{name}.pts"))).unwrap();
+        assert_eq!(points.len(), 68);
+    }
+    let again = dir.join("again");
+    let run = splineface(&[
+        "reconstruct",
+        "--photos",
+        &s(&photos),
+        "--landmarks",
+        &s(&out.join("landmarks")),
+        "--out",
+        &s(&again),
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let structure = |dir: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(dir.join("structure.json")).unwrap()).unwrap()
+    };
+    assert_eq!(structure(&out)["points"], structure(&again)["points"]);
+    // `splineface landmarks`: the same points, landmark JSON, and the same overlays' names.
+    let alone = dir.join("landmarks-alone");
+    let run = splineface(&[
+        "landmarks",
+        "--photos",
+        &s(&photos),
+        "--landmark-model",
+        &s(&model),
+        "--json",
+        "--out",
+        &s(&alone),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(stdout.contains("dogs.jpg: skipped: no face found"), "{stdout}");
+    for name in &used {
+        assert_eq!(
+            std::fs::read(alone.join(format!("{name}.pts"))).unwrap(),
+            std::fs::read(out.join("landmarks").join(format!("{name}.pts"))).unwrap()
+        );
+        let json = splineface::landmarks::read_landmarks_json(&alone.join(format!("{name}.json"))).unwrap();
+        assert_eq!(json.scheme, splineface::landmarks::Scheme::Ibug68);
+    }
+    assert_eq!(names(&alone.join("overlays")), names(&out.join("overlays")));
     // With the bar above the usable photos, the run stops and lists every skipped photo.
     let strict = splineface(&[
         "reconstruct",
