@@ -1745,68 +1745,83 @@ fn photo_files(
     result: Option<&splineface::pipeline::Reconstruction>,
     warnings: &mut Vec<String>,
 ) -> Vec<(PathBuf, Vec<u8>)> {
+    use rayon::prelude::*;
     use splineface::report::{Overlay, PhotoStatus, draw_overlay};
-    let mut files = Vec::new();
-    for record in records {
-        if record.detected {
-            files.push((
-                landmark_folder.join(format!("{}.pts", record.name)),
-                splineface::landmarks::format_pts(&record.landmarks).into_bytes(),
-            ));
-        }
-        let input = inputs.iter().find(|i| i.points.name == record.name);
-        let image = match (
-            &record.image,
-            &record.skipped,
-            input.and_then(|i| i.image.as_ref()),
-        ) {
-            (Some(image), _, _) => image,
-            (None, None, Some(photo)) => &photo.colour,
-            _ => continue, // an undecodable photo, or a points-only run: no picture to draw on
-        };
-        let mut notes = Vec::new();
-        let mut fitted = None;
-        let status = match (&record.skipped, result) {
-            (Some(why), _) => PhotoStatus::Skipped(why.clone()),
-            (None, Some(result)) => {
-                if let Some(d) = result.dropped.iter().find(|d| d.name == record.name) {
-                    PhotoStatus::Dropped(d.reason.clone())
-                } else {
-                    if let Some(slot) = result.photo_fits.iter().position(|f| f.name == record.name) {
-                        let fit = &result.photo_fits[slot];
-                        let [yaw, pitch, roll] = result.depth.photos[slot].pose.yaw_pitch_roll_degrees();
-                        notes.push(format!(
-                            "yaw {yaw:.1}°, pitch {pitch:.1}°, roll {roll:.1}°; the fitted face's points lie {:.1} px RMS from the photo's",
-                            fit.rms_pixels
-                        ));
-                        if let Some(input) = input {
-                            fitted = Some((input.points.points.as_slice(), fit.points.as_slice()));
-                        }
-                    }
-                    PhotoStatus::Used
-                }
+    // Each photo's files, or why its overlay is missing; the photos in parallel, their files
+    // in the records' order.
+    type PhotoOutputs = (Vec<(PathBuf, Vec<u8>)>, Option<String>);
+    let per_photo: Vec<PhotoOutputs> = records
+        .par_iter()
+        .map(|record| {
+            let mut files = Vec::new();
+            if record.detected {
+                files.push((
+                    landmark_folder.join(format!("{}.pts", record.name)),
+                    splineface::landmarks::format_pts(&record.landmarks).into_bytes(),
+                ));
             }
-            (None, None) => PhotoStatus::Landmarked,
-        };
-        if record.detected && record.skipped.is_none() {
-            notes.push(format!(
-                "landmarks: {}",
-                landmark_folder.join(format!("{}.pts", record.name)).display()
-            ));
-        }
-        let picture = draw_overlay(&Overlay {
-            image,
-            name: &record.name,
-            status: &status,
-            notes: &notes,
-            face_box: record.face_box,
-            landmarks: &record.landmarks,
-            fitted,
-        });
-        match splineface::export::encode_png(&picture) {
-            Ok(png) => files.push((Path::new("overlays").join(format!("{}.png", record.name)), png)),
-            Err(e) => warnings.push(format!("{}: its overlay could not be encoded: {e}", record.name)),
-        }
+            let input = inputs.iter().find(|i| i.points.name == record.name);
+            let image = match (
+                &record.image,
+                &record.skipped,
+                input.and_then(|i| i.image.as_ref()),
+            ) {
+                (Some(image), _, _) => image,
+                (None, None, Some(photo)) => &photo.colour,
+                _ => return (files, None), // an undecodable photo, or a points-only run: no picture
+            };
+            let mut notes = Vec::new();
+            let mut fitted = None;
+            let status = match (&record.skipped, result) {
+                (Some(why), _) => PhotoStatus::Skipped(why.clone()),
+                (None, Some(result)) => {
+                    if let Some(d) = result.dropped.iter().find(|d| d.name == record.name) {
+                        PhotoStatus::Dropped(d.reason.clone())
+                    } else {
+                        if let Some(slot) = result.photo_fits.iter().position(|f| f.name == record.name) {
+                            let fit = &result.photo_fits[slot];
+                            let [yaw, pitch, roll] = result.depth.photos[slot].pose.yaw_pitch_roll_degrees();
+                            notes.push(format!(
+                                "yaw {yaw:.1}°, pitch {pitch:.1}°, roll {roll:.1}°; the fitted face's points lie {:.1} px RMS from the photo's",
+                                fit.rms_pixels
+                            ));
+                            if let Some(input) = input {
+                                fitted = Some((input.points.points.as_slice(), fit.points.as_slice()));
+                            }
+                        }
+                        PhotoStatus::Used
+                    }
+                }
+                (None, None) => PhotoStatus::Landmarked,
+            };
+            if record.detected && record.skipped.is_none() {
+                notes.push(format!(
+                    "landmarks: {}",
+                    landmark_folder.join(format!("{}.pts", record.name)).display()
+                ));
+            }
+            let picture = draw_overlay(&Overlay {
+                image,
+                name: &record.name,
+                status: &status,
+                notes: &notes,
+                face_box: record.face_box,
+                landmarks: &record.landmarks,
+                fitted,
+            });
+            match splineface::export::encode_png(&picture) {
+                Ok(png) => {
+                    files.push((Path::new("overlays").join(format!("{}.png", record.name)), png));
+                    (files, None)
+                }
+                Err(e) => (files, Some(format!("{}: its overlay could not be encoded: {e}", record.name))),
+            }
+        })
+        .collect();
+    let mut files = Vec::new();
+    for (photo_files, warning) in per_photo {
+        files.extend(photo_files);
+        warnings.extend(warning);
     }
     files
 }

@@ -11,7 +11,7 @@
 //! so), never the page.
 //!
 //! A small script records what goes wrong while the page loads (script errors, console
-//! errors, images that do not load) and, once the viewer has drawn the face, how much of its
+//! errors and warnings, images that do not load) and, once the viewer has drawn the face, how much of its
 //! canvas differs from the background; it writes both as JSON into the hidden element
 //! `#self-check`. The browser test (`tests/splineface/report_page.rs`) reads it.
 
@@ -75,6 +75,7 @@ fn escape(text: &str) -> String {
             '>' => out.push_str("&gt;"),
             '"' => out.push_str("&quot;"),
             '\'' => out.push_str("&#39;"),
+            '\0' => out.push('\u{FFFD}'),
             c => out.push(c),
         }
     }
@@ -95,15 +96,45 @@ fn picture_uri(png: &[u8], photo: bool) -> String {
     format!("data:image/png;base64,{}", base64::encode(png))
 }
 
+/// The pictures of a page, inlined last and in parallel (decoding and re-encoding them is
+/// most of a page's time): [`figure`] leaves a marker `NUL index NUL` where each goes.
+type Pictures<'a> = Vec<(&'a [u8], bool)>;
+
 /// A figure with a picture and a caption.
-fn figure(page: &mut String, png: &[u8], photo: bool, caption: &str, class: &str) {
+fn figure<'a>(
+    page: &mut String,
+    pictures: &mut Pictures<'a>,
+    png: &'a [u8],
+    photo: bool,
+    caption: &str,
+    class: &str,
+) {
     let _ = writeln!(
         page,
-        "<figure class=\"{class}\"><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
-        picture_uri(png, photo),
+        "<figure class=\"{class}\"><img src=\"\0{}\0\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
+        pictures.len(),
         escape(caption),
         escape(caption)
     );
+    pictures.push((png, photo));
+}
+
+/// The page with each picture's marker replaced by its `data:` URI.
+fn inline_pictures(page: &str, pictures: &Pictures<'_>) -> String {
+    use rayon::prelude::*;
+    let uris: Vec<String> = pictures
+        .par_iter()
+        .map(|(png, photo)| picture_uri(png, *photo))
+        .collect();
+    let mut out = String::with_capacity(page.len() + uris.iter().map(String::len).sum::<usize>());
+    for (k, part) in page.split('\0').enumerate() {
+        if k % 2 == 0 {
+            out.push_str(part);
+        } else if let Some(uri) = part.parse::<usize>().ok().and_then(|i| uris.get(i)) {
+            out.push_str(uri);
+        }
+    }
+    out
 }
 
 /// A number with `digits` decimals, or a dash.
@@ -215,7 +246,7 @@ footer { color: var(--muted); font-size: 13px; }
 
 /// The error recorder, first in the page so that it sees everything.
 const RECORDER: &str = r#"
-window.__selfCheck = { errors: [] };
+window.__selfCheck = { errors: [], warnings: [] };
 addEventListener('error', (e) => {
   const t = e.target;
   if (t && t !== window && (t.src || t.href)) {
@@ -225,9 +256,9 @@ addEventListener('error', (e) => {
   }
 }, true);
 addEventListener('unhandledrejection', (e) => window.__selfCheck.errors.push('unhandled rejection: ' + e.reason));
-for (const level of ['error', 'warn']) {
+for (const [level, list] of [['error', 'errors'], ['warn', 'warnings']]) {
   const original = console[level].bind(console);
-  console[level] = (...args) => { window.__selfCheck.errors.push('console.' + level + ': ' + args.join(' ')); original(...args); };
+  console[level] = (...args) => { window.__selfCheck[list].push('console.' + level + ': ' + args.join(' ')); original(...args); };
 }
 "#;
 
@@ -239,6 +270,7 @@ const CHECK: &str = r#"
     result.images = images.length;
     result.broken = images.filter((i) => !i.complete || i.naturalWidth === 0).map((i) => i.alt);
     result.errors = window.__selfCheck.errors;
+    result.warnings = window.__selfCheck.warnings;
     const out = document.getElementById('self-check');
     out.textContent = JSON.stringify(result);
     out.dataset.done = 'true';
@@ -296,7 +328,8 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
     let r = |name: &str| options.reconstruction.join(name);
     let report = files.json(&r("report.json")).unwrap_or(Value::Null);
     let structure = files.json(&r("structure.json")).unwrap_or(Value::Null);
-    let mut page = String::with_capacity(4 << 20);
+    let mut page = String::with_capacity(2 << 20);
+    let mut pictures: Pictures<'_> = Vec::new();
     let _ = write!(
         page,
         "<!doctype html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n\
@@ -350,7 +383,14 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
     }
     page.push_str("</div>\n<div>\n");
     if let Some(png) = files.get(&r("preview.png")) {
-        figure(&mut page, png, false, "depth map, shaded (preview.png)", "small");
+        figure(
+            &mut page,
+            &mut pictures,
+            png,
+            false,
+            "depth map, shaded (preview.png)",
+            "small",
+        );
     }
     page.push_str("</div>\n</div>\n</section>\n");
 
@@ -366,20 +406,20 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
                        green: the landmarks; magenta: the fitted face's points seen by each photo's camera, joined to the photo's own.</p>\n<div class=\"grid\">\n");
         for (path, png) in overlays {
             let name = path.file_stem().map(|s| s.to_string_lossy()).unwrap_or_default();
-            figure(&mut page, png, true, &name, "photo");
+            figure(&mut page, &mut pictures, png, true, &name, "photo");
         }
         page.push_str("</div>\n</section>\n");
     }
 
     // The comparison with a ground truth.
     if let Some(folder) = &options.comparison {
-        comparison(&mut page, &files, folder);
+        comparison(&mut page, &mut pictures, &files, folder);
     }
 
     // RASL, the refinement, the texture.
     // (section id, title, [(file, caption, photographic)]).
-    type Pictures<'a> = &'a [(&'a str, &'a str, bool)];
-    let sections: [(&str, &str, Pictures<'_>); 3] = [
+    type Listed<'a> = &'a [(&'a str, &'a str, bool)];
+    let sections: [(&str, &str, Listed<'_>); 3] = [
         (
             "alignment",
             "Batch alignment (RASL)",
@@ -426,8 +466,8 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
             ],
         ),
     ];
-    for (id, title, pictures) in sections {
-        let present: Vec<(&[u8], &str, bool)> = pictures
+    for (id, title, listed) in sections {
+        let present: Vec<(&[u8], &str, bool)> = listed
             .iter()
             .filter_map(|(name, caption, photo)| files.get(&r(name)).map(|b| (b, *caption, *photo)))
             .collect();
@@ -439,7 +479,7 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
             "<section id=\"{id}\">\n<h2>{title}</h2>\n<div class=\"grid\">"
         );
         for (png, caption, photo) in present {
-            figure(&mut page, png, photo, caption, "wide");
+            figure(&mut page, &mut pictures, png, photo, caption, "wide");
         }
         page.push_str("</div>\n</section>\n");
     }
@@ -451,7 +491,7 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
     );
     page.push_str(CHECK);
     page.push_str("</script>\n</body>\n</html>\n");
-    page
+    inline_pictures(&page, &pictures)
 }
 
 /// The summary section: the photos, warnings, how the face was made, timings.
@@ -601,9 +641,9 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
 }
 
 /// The comparison section: the heatmap, the two shaded depth maps and the measures.
-fn comparison(page: &mut String, files: &Files<'_>, folder: &Path) {
+fn comparison<'a>(page: &mut String, pictures: &mut Pictures<'a>, files: &Files<'a>, folder: &Path) {
     let stats = files.json(&folder.join("stats.json"));
-    let pictures: Vec<(&[u8], &str)> = [
+    let shown: Vec<(&[u8], &str)> = [
         ("heatmap.png", "|Δz| between the reconstruction and the truth"),
         ("reconstruction.png", "the reconstruction"),
         ("truth.png", "the truth"),
@@ -611,7 +651,7 @@ fn comparison(page: &mut String, files: &Files<'_>, folder: &Path) {
     .iter()
     .filter_map(|(name, caption)| files.get(&folder.join(name)).map(|b| (b, *caption)))
     .collect();
-    if pictures.is_empty() && stats.is_none() {
+    if shown.is_empty() && stats.is_none() {
         return;
     }
     page.push_str("<section id=\"comparison\">\n<h2>Against the truth</h2>\n");
@@ -641,8 +681,8 @@ fn comparison(page: &mut String, files: &Files<'_>, folder: &Path) {
         page.push_str("</table>\n");
     }
     page.push_str("<div class=\"grid\">\n");
-    for (png, caption) in pictures {
-        figure(page, png, false, caption, "small");
+    for (png, caption) in shown {
+        figure(page, pictures, png, false, caption, "small");
     }
     page.push_str("</div>\n</section>\n");
 }

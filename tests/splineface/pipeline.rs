@@ -958,3 +958,55 @@ fn a_killed_run_leaves_every_output_whole() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `splineface landmarks` on photos an overlay is hard to draw on: a greyscale photo is
+/// landmarked and drawn in grey; a thumbnail too small for a face gets an overlay (scaled up)
+/// saying none was found; a file that is not an image gets its reason on the terminal.
+#[test]
+#[ignore = "needs ../shared (dlib's model and photos)"]
+fn landmarks_draws_every_photo_it_can_decode_and_names_the_rest() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let dir = scratch("landmarks-odd");
+    let photos = dir.join("photos");
+    std::fs::create_dir_all(&photos).unwrap();
+    let tom = image::open(shared.join("data/dlib-faces/Tom_Cruise_avp_2014_4.jpg")).unwrap();
+    tom.to_luma8().save(photos.join("grey.png")).unwrap();
+    image::imageops::resize(&tom.to_rgb8(), 24, 18, image::imageops::FilterType::Triangle)
+        .save(photos.join("thumbnail.png"))
+        .unwrap();
+    std::fs::write(photos.join("not-an-image.jpg"), b"hello").unwrap();
+    let out = dir.join("out");
+    let run = splineface(&[
+        "landmarks",
+        "--photos",
+        &s(&photos),
+        "--landmark-model",
+        &s(&shared.join("models/shape_predictor_68_face_landmarks.dat")),
+        "--out",
+        &s(&out),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(stdout.contains("grey.png: 68 points"), "{stdout}");
+    assert!(
+        stdout.contains("thumbnail.png: skipped: no face found"),
+        "{stdout}"
+    );
+    assert!(stdout.contains("not-an-image.jpg: skipped:"), "{stdout}");
+    assert_eq!(
+        splineface::landmarks::read_pts(&out.join("grey.pts"))
+            .unwrap()
+            .len(),
+        68
+    );
+    assert!(!out.join("thumbnail.pts").exists() && !out.join("not-an-image.pts").exists());
+    let grey = image::open(out.join("overlays/grey.png")).unwrap().to_rgb8();
+    // The photo part stays grey; the marks are green and yellow.
+    let (w, h) = grey.dimensions();
+    let middle = grey.get_pixel(w / 8, h - 4).0;
+    assert!(middle[0] == middle[1] && middle[1] == middle[2], "{middle:?}");
+    let thumbnail = image::open(out.join("overlays/thumbnail.png")).unwrap();
+    assert_eq!(thumbnail.width(), splineface::report::MIN_SIDE);
+    assert!(!out.join("overlays/not-an-image.png").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
