@@ -1300,7 +1300,12 @@ fn reconstruct_command(
     let page = splineface::report::report_page(
         &files,
         &splineface::report::PageOptions {
-            title: format!("splineface: {}", out.display()),
+            // From the inputs only, so that the same inputs give the same page wherever it goes.
+            title: format!(
+                "splineface: a face from {} photo{}",
+                inputs.len(),
+                if inputs.len() == 1 { "" } else { "s" }
+            ),
             reconstruction: PathBuf::new(),
             comparison: None,
         },
