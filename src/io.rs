@@ -14,18 +14,18 @@ pub const MAX_DATA_INPUT_BYTES: u64 = 1 << 30;
 /// The largest mesh or photo file read: 4 GiB.
 pub const MAX_LARGE_INPUT_BYTES: u64 = 4 << 30;
 
-/// Reads an input file whole, if it is a regular file of at most `limit` bytes.
+/// Opens an input file for reading, if it is a regular, non-empty file of at most `limit`
+/// bytes (its length is the file's metadata's); see [`read_input`].
 ///
 /// `std::fs::read` would read a device such as `/dev/zero` or a named pipe until memory runs
 /// out or forever, and a directory gives a terse OS error; these are refused up front, with an
-/// error saying what the path is. The size is checked before reading and the read is capped at
-/// it, so a file that grows meanwhile cannot exceed the limit either.
+/// error saying what the path is.
 ///
 /// # Errors
 /// `NotFound` and other OS errors as they come; `InvalidInput` for a directory, a special file
 /// or an oversized file; `InvalidData` for an empty file (no input this crate reads can be
 /// empty).
-pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
+pub fn open_input(path: &Path, limit: u64) -> std::io::Result<std::fs::File> {
     let refuse = |message: String| Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, message));
     // Looked at before opening: opening a named pipe blocks until someone writes to it.
     let metadata = std::fs::metadata(path)?;
@@ -53,10 +53,25 @@ pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
             limit
         ));
     }
-    let mut bytes = Vec::with_capacity(usize::try_from(metadata.len()).unwrap_or(0));
+    Ok(file)
+}
+
+/// Reads an input file whole, if it is a regular file of at most `limit` bytes
+/// ([`open_input`]). The size is checked before reading and the read is capped at it, so a
+/// file that grows meanwhile cannot exceed the limit either.
+///
+/// # Errors
+/// As [`open_input`], and `InvalidInput` for a file that grew past the limit while read.
+pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
+    let file = open_input(path, limit)?;
+    let length = file.metadata()?.len();
+    let mut bytes = Vec::with_capacity(usize::try_from(length).unwrap_or(0));
     file.take(limit.saturating_add(1)).read_to_end(&mut bytes)?;
     if bytes.len() as u64 > limit {
-        return refuse(format!("it grew past {limit} bytes while being read"));
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            format!("it grew past {limit} bytes while being read"),
+        ));
     }
     Ok(bytes)
 }

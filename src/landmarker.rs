@@ -29,28 +29,35 @@ use nalgebra::{Matrix2, Point2, Vector2};
 use crate::Real;
 
 /// A `shape_predictor` model.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct ShapePredictor {
     /// The mean shape, `(x, y)` per point, box-normalised.
     initial: Vec<[f32; 2]>,
     cascades: Vec<Cascade>,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq)]
 struct Cascade {
     anchors: Vec<u32>,
     deltas: Vec<[f32; 2]>,
-    trees: Vec<Tree>,
-}
-
-#[derive(Debug, Clone)]
-struct Tree {
+    /// Each tree's place in `splits` and `leaves`.
+    trees: Vec<TreeSpan>,
+    /// Every tree's splits, tree after tree (each tree's in heap order: children of `i` at
+    /// `2i + 1` and `2i + 2`).
     splits: Vec<Split>,
-    /// Leaves, each `2·points` values.
+    /// Every tree's leaves, tree after tree, each leaf `2·points` values.
     leaves: Vec<f32>,
 }
 
-#[derive(Debug, Clone, Copy)]
+/// Where a tree's splits and leaves are in its cascade (it has `splits + 1` leaves).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct TreeSpan {
+    split_start: usize,
+    splits: usize,
+    leaf_start: usize,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
 struct Split {
     idx1: u32,
     idx2: u32,
@@ -228,7 +235,9 @@ impl Reader<'_> {
 }
 
 impl ShapePredictor {
-    /// Reads a model file (e.g. `shape_predictor_68_face_landmarks.dat`).
+    /// Reads a model file: dlib's (e.g. `shape_predictor_68_face_landmarks.dat`, parsed) or
+    /// splineface's compact form of one ([`ShapePredictor::to_compact`], copied into place),
+    /// told apart by the compact form's first bytes.
     ///
     /// # Errors
     /// A [`ModelError`] naming the file.
@@ -237,6 +246,22 @@ impl ShapePredictor {
             file: path.to_path_buf(),
             problem,
         };
+        let io = |e: std::io::Error| error(ModelProblem::Io(e.to_string()));
+        let mut file = crate::io::open_input(path, crate::io::MAX_DATA_INPUT_BYTES)
+            .map_err(|e| error(ModelProblem::Io(e.to_string())))?;
+        let length = file.metadata().map_err(io)?.len();
+        let mut magic = [0u8; 16];
+        let compact = {
+            use std::io::{Read, Seek};
+            let n = file.read(&mut magic).map_err(io)?;
+            file.rewind().map_err(io)?;
+            n == 16 && &magic == COMPACT_MAGIC
+        };
+        if compact {
+            return Self::read_compact(file, length)
+                .map(|(model, _)| model)
+                .map_err(error);
+        }
         let bytes = crate::io::read_input(path, crate::io::MAX_DATA_INPUT_BYTES)
             .map_err(|e| error(ModelProblem::Io(e.to_string())))?;
         Self::parse(&bytes).map_err(error)
@@ -262,13 +287,20 @@ impl ShapePredictor {
         let dims = initial.len();
         let points = dims / 2;
         let cascades = r.count(2, "the forests")?;
-        let mut forests = Vec::with_capacity(cascades);
+        let mut forests: Vec<(Vec<TreeSpan>, Vec<Split>, Vec<f32>)> = Vec::with_capacity(cascades);
         for _ in 0..cascades {
             let trees = r.count(4, "a forest")?;
-            let mut forest = Vec::with_capacity(trees);
+            let mut spans = Vec::with_capacity(trees);
+            let mut splits = Vec::new();
+            let mut leaves = Vec::new();
             for _ in 0..trees {
                 let n_splits = r.count(6, "a tree's splits")?;
-                let mut splits = Vec::with_capacity(n_splits);
+                let span = TreeSpan {
+                    split_start: splits.len(),
+                    splits: n_splits,
+                    leaf_start: leaves.len(),
+                };
+                splits.reserve(n_splits);
                 for _ in 0..n_splits {
                     let (idx1, idx2) = (r.integer()?, r.integer()?);
                     let threshold = r.float()?;
@@ -286,7 +318,7 @@ impl ShapePredictor {
                     return Err(r.malformed(format!("{n_leaves} leaves for {n_splits} splits")));
                 }
                 // Each value takes at least two bytes: reserve no more than the file can hold.
-                let mut leaves = Vec::with_capacity(n_leaves.saturating_mul(dims).min(bytes.len() / 2));
+                leaves.reserve(n_leaves.saturating_mul(dims).min(bytes.len() / 2));
                 for _ in 0..n_leaves {
                     let leaf = r.column()?;
                     if leaf.len() != dims {
@@ -296,9 +328,9 @@ impl ShapePredictor {
                     }
                     leaves.extend(leaf);
                 }
-                forest.push(Tree { splits, leaves });
+                spans.push(span);
             }
-            forests.push(forest);
+            forests.push((spans, splits, leaves));
         }
         let n_anchor_sets = r.count(1, "the anchors")?;
         if n_anchor_sets != cascades {
@@ -323,7 +355,7 @@ impl ShapePredictor {
             return Err(r.malformed(format!("{n_delta_sets} delta sets for {cascades} cascades")));
         }
         let mut result = Vec::with_capacity(cascades);
-        for (trees, anchors) in forests.into_iter().zip(anchors) {
+        for ((trees, splits, leaves), anchors) in forests.into_iter().zip(anchors) {
             let n = r.count(4, "a delta set")?;
             if n != anchors.len() {
                 return Err(r.malformed(format!("{n} deltas for {} anchors", anchors.len())));
@@ -331,19 +363,18 @@ impl ShapePredictor {
             let deltas: Vec<[f32; 2]> = (0..n)
                 .map(|_| Ok([r.float()?, r.float()?]))
                 .collect::<Result<_, ModelProblem>>()?;
-            for tree in &trees {
-                if tree
-                    .splits
-                    .iter()
-                    .any(|s| s.idx1 as usize >= n || s.idx2 as usize >= n)
-                {
-                    return Err(r.malformed("a split reads a feature pixel the cascade does not have"));
-                }
+            if splits
+                .iter()
+                .any(|s| s.idx1 as usize >= n || s.idx2 as usize >= n)
+            {
+                return Err(r.malformed("a split reads a feature pixel the cascade does not have"));
             }
             result.push(Cascade {
                 anchors,
                 deltas,
                 trees,
+                splits,
+                leaves,
             });
         }
         Ok(ShapePredictor {
@@ -413,16 +444,18 @@ impl ShapePredictor {
                 f32::from(image.get((q[0] + 0.5).floor() as i64, (q[1] + 0.5).floor() as i64))
             }));
             for tree in &cascade.trees {
+                let splits = &cascade.splits[tree.split_start..tree.split_start + tree.splits];
                 let mut i = 0usize;
-                while i < tree.splits.len() {
-                    let s = &tree.splits[i];
+                while i < splits.len() {
+                    let s = &splits[i];
                     i = if features[s.idx1 as usize] - features[s.idx2 as usize] > s.threshold {
                         2 * i + 1
                     } else {
                         2 * i + 2
                     };
                 }
-                let leaf = &tree.leaves[(i - tree.splits.len()) * 2 * n..(i - tree.splits.len() + 1) * 2 * n];
+                let start = tree.leaf_start + (i - splits.len()) * 2 * n;
+                let leaf = &cascade.leaves[start..start + 2 * n];
                 for (p, d) in shape.iter_mut().zip(leaf.chunks_exact(2)) {
                     p[0] += d[0];
                     p[1] += d[1];
@@ -480,4 +513,257 @@ fn similarity_linear(from: &[[f32; 2]], to: &[[f32; 2]]) -> Matrix2<f32> {
         1.0
     };
     (rotation * c).map(|x| x as f32)
+}
+
+/// The first 16 bytes of splineface's compact form of a model ([`ShapePredictor::to_compact`]).
+pub const COMPACT_MAGIC: &[u8; 16] = b"splineface-sp-1\n";
+
+/// The dlib file a compact model was made from: its length and FNV-1a 64 hash
+/// ([`crate::reference::fnv1a64_value`]), recorded in the compact file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelSource {
+    /// The `.dat` file's length in bytes.
+    pub bytes: u64,
+    /// Its FNV-1a 64 hash.
+    pub fnv1a64: u64,
+}
+
+impl ModelSource {
+    /// The source record of a `.dat` file's bytes.
+    pub fn of(bytes: &[u8]) -> Self {
+        ModelSource {
+            bytes: bytes.len() as u64,
+            fnv1a64: crate::reference::fnv1a64_value(bytes),
+        }
+    }
+}
+
+/// Little-endian arrays read straight into place: the compact form's reader.
+struct CompactReader<R> {
+    reader: R,
+    /// Bytes left in the file.
+    left: u64,
+    /// Bytes read so far.
+    at: u64,
+}
+
+impl<R: std::io::Read> CompactReader<R> {
+    fn fill(&mut self, bytes: &mut [u8]) -> Result<(), ModelProblem> {
+        if bytes.len() as u64 > self.left {
+            return Err(ModelProblem::Truncated(self.at as usize));
+        }
+        self.reader
+            .read_exact(bytes)
+            .map_err(|e| ModelProblem::Io(e.to_string()))?;
+        self.left -= bytes.len() as u64;
+        self.at += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// `n` 32-bit words, checked against the bytes left before anything is allocated.
+    fn words(&mut self, n: usize, what: &str) -> Result<Vec<u32>, ModelProblem> {
+        if (n as u64).saturating_mul(4) > self.left {
+            return Err(ModelProblem::Malformed {
+                at: self.at as usize,
+                message: format!("{what} claims {n} values, more than the file holds"),
+            });
+        }
+        let mut words = vec![0u32; n];
+        self.fill(bytemuck::cast_slice_mut(&mut words))?;
+        if cfg!(target_endian = "big") {
+            for w in &mut words {
+                *w = u32::from_le(*w);
+            }
+        }
+        Ok(words)
+    }
+
+    fn word(&mut self) -> Result<u32, ModelProblem> {
+        Ok(self.words(1, "a count")?[0])
+    }
+
+    fn count(&mut self, what: &str) -> Result<usize, ModelProblem> {
+        let n = self.word()? as usize;
+        if (n as u64) > self.left {
+            return Err(ModelProblem::Malformed {
+                at: self.at as usize - 4,
+                message: format!("{what} claims {n} items, more than the file holds"),
+            });
+        }
+        Ok(n)
+    }
+
+    fn floats(&mut self, n: usize, what: &str) -> Result<Vec<f32>, ModelProblem> {
+        if cfg!(target_endian = "little") {
+            if (n as u64).saturating_mul(4) > self.left {
+                return Err(ModelProblem::Malformed {
+                    at: self.at as usize,
+                    message: format!("{what} claims {n} values, more than the file holds"),
+                });
+            }
+            let mut values = vec![0f32; n];
+            self.fill(bytemuck::cast_slice_mut(&mut values))?;
+            Ok(values)
+        } else {
+            Ok(self.words(n, what)?.into_iter().map(f32::from_bits).collect())
+        }
+    }
+}
+
+fn push_words(out: &mut Vec<u8>, words: impl IntoIterator<Item = u32>) {
+    for w in words {
+        out.extend_from_slice(&w.to_le_bytes());
+    }
+}
+
+fn push_floats<'a>(out: &mut Vec<u8>, values: impl IntoIterator<Item = &'a f32>) {
+    push_words(out, values.into_iter().map(|v| v.to_bits()));
+}
+
+impl ShapePredictor {
+    /// The model in splineface's compact form: the same trees, every number a little-endian
+    /// 32-bit word, arrays laid end to end, so that reading it is copying it into place
+    /// (`tools/fetch-models` writes one beside the `.dat`; `splineface compact-model` makes
+    /// one). `source` records the `.dat` it came from.
+    ///
+    /// The layout: [`COMPACT_MAGIC`]; the source's length and hash (two `u64`); the points,
+    /// the cascades (`u32`); the mean shape (`2·points` `f32`); then per cascade the feature
+    /// count `m`, `m` anchors (`u32`), `2m` deltas (`f32`), the tree count `t`, `t` split
+    /// counts (`u32`), every split (`idx1`, `idx2` as `u32`, `threshold` as `f32`) and every
+    /// leaf (`2·points` `f32` each, `splits + 1` a tree).
+    pub fn to_compact(&self, source: ModelSource) -> Vec<u8> {
+        let leaf_values: usize = self.cascades.iter().map(|c| c.leaves.len()).sum();
+        let mut out = Vec::with_capacity(64 + 4 * leaf_values + 12 * self.cascades.len() * 10_000);
+        out.extend_from_slice(COMPACT_MAGIC);
+        out.extend_from_slice(&source.bytes.to_le_bytes());
+        out.extend_from_slice(&source.fnv1a64.to_le_bytes());
+        push_words(&mut out, [self.initial.len() as u32, self.cascades.len() as u32]);
+        push_floats(&mut out, self.initial.iter().flatten());
+        for c in &self.cascades {
+            push_words(&mut out, [c.anchors.len() as u32]);
+            push_words(&mut out, c.anchors.iter().copied());
+            push_floats(&mut out, c.deltas.iter().flatten());
+            push_words(&mut out, [c.trees.len() as u32]);
+            push_words(&mut out, c.trees.iter().map(|t| t.splits as u32));
+            push_words(
+                &mut out,
+                c.splits
+                    .iter()
+                    .flat_map(|s| [s.idx1, s.idx2, s.threshold.to_bits()]),
+            );
+            push_floats(&mut out, &c.leaves);
+        }
+        out
+    }
+
+    /// Reads a model in the compact form from `reader`, `length` bytes long, checking every
+    /// count against the bytes left and every index against what it indexes; returns the
+    /// model and its recorded source.
+    ///
+    /// # Errors
+    /// The first problem, with its byte offset.
+    pub fn read_compact(
+        reader: impl std::io::Read,
+        length: u64,
+    ) -> Result<(Self, ModelSource), ModelProblem> {
+        let mut r = CompactReader {
+            reader,
+            left: length,
+            at: 0,
+        };
+        let mut magic = [0u8; 16];
+        r.fill(&mut magic)?;
+        if &magic != COMPACT_MAGIC {
+            return Err(ModelProblem::Malformed {
+                at: 0,
+                message: "not splineface's compact model form".into(),
+            });
+        }
+        let mut head = [0u8; 16];
+        r.fill(&mut head)?;
+        let source = ModelSource {
+            bytes: u64::from_le_bytes(head[..8].try_into().expect("8 bytes")),
+            fnv1a64: u64::from_le_bytes(head[8..].try_into().expect("8 bytes")),
+        };
+        let points = r.count("the mean shape")?;
+        let cascades = r.count("the cascades")?;
+        if points == 0 {
+            return Err(r_malformed(&r, "a model of no points"));
+        }
+        let initial = r.floats(2 * points, "the mean shape")?;
+        if initial.iter().any(|v| !v.is_finite()) {
+            return Err(r_malformed(&r, "the mean shape must be finite"));
+        }
+        let dims = 2 * points;
+        let mut result = Vec::with_capacity(cascades.min(1024));
+        for _ in 0..cascades {
+            let m = r.count("a cascade's features")?;
+            let anchors = r.words(m, "the anchors")?;
+            if anchors.iter().any(|&a| a as usize >= points) {
+                return Err(r_malformed(&r, "an anchor is not one of the points"));
+            }
+            let deltas: Vec<[f32; 2]> = r
+                .floats(2 * m, "the deltas")?
+                .chunks_exact(2)
+                .map(|d| [d[0], d[1]])
+                .collect();
+            let t = r.count("a cascade's trees")?;
+            let counts = r.words(t, "the trees' split counts")?;
+            let mut trees = Vec::with_capacity(t);
+            let (mut split_start, mut leaf_start) = (0usize, 0usize);
+            for &splits in &counts {
+                let splits = splits as usize;
+                trees.push(TreeSpan {
+                    split_start,
+                    splits,
+                    leaf_start,
+                });
+                split_start = split_start.saturating_add(splits);
+                leaf_start = leaf_start.saturating_add((splits + 1).saturating_mul(dims));
+            }
+            let raw = r.words(split_start.saturating_mul(3), "the splits")?;
+            let splits: Vec<Split> = raw
+                .chunks_exact(3)
+                .map(|s| Split {
+                    idx1: s[0],
+                    idx2: s[1],
+                    threshold: f32::from_bits(s[2]),
+                })
+                .collect();
+            if splits
+                .iter()
+                .any(|s| s.idx1 as usize >= m || s.idx2 as usize >= m)
+            {
+                return Err(r_malformed(
+                    &r,
+                    "a split reads a feature pixel the cascade does not have",
+                ));
+            }
+            let leaves = r.floats(leaf_start, "the leaves")?;
+            result.push(Cascade {
+                anchors,
+                deltas,
+                trees,
+                splits,
+                leaves,
+            });
+        }
+        if r.left != 0 {
+            return Err(r_malformed(&r, "bytes after the last cascade"));
+        }
+        Ok((
+            ShapePredictor {
+                initial: initial.chunks_exact(2).map(|c| [c[0], c[1]]).collect(),
+                cascades: result,
+            },
+            source,
+        ))
+    }
+}
+
+fn r_malformed<R>(r: &CompactReader<R>, message: &str) -> ModelProblem {
+    ModelProblem::Malformed {
+        at: r.at as usize,
+        message: message.to_owned(),
+    }
 }

@@ -140,6 +140,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Write dlib's landmark model in splineface's compact form, which loads in a fraction of
+    /// the time (the same trees, bit for bit; `--landmark-model` takes either). An existing
+    /// output made from the same `.dat` (by its recorded length and hash) is left as it is.
+    CompactModel {
+        /// dlib's `shape_predictor_68_face_landmarks.dat`.
+        model: PathBuf,
+        /// The compact file to write (e.g. `shape_predictor_68_face_landmarks.sfsp`).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Run the whole pipeline on the embedded demo subject: render a dozen photos of it under
     /// varied poses, reconstruct the face and compare it with the truth.
     #[command(allow_negative_numbers = true)]
@@ -427,6 +437,7 @@ fn run(cli: Cli) -> Result<()> {
             &out,
             &output,
         ),
+        Command::CompactModel { model, out } => compact_model(&model, &out),
         Command::Landmarks {
             photos,
             photo_dir,
@@ -1561,6 +1572,37 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     println!("  heatmap    {}/compare/heatmap.png", out.display());
     println!("  report     {}/report.html", out.display());
     println!("  time       {:.1} s", start.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn compact_model(model: &Path, out: &Path) -> Result<()> {
+    use splineface::landmarker::{ModelSource, ShapePredictor};
+    check_output_file(out)?;
+    let dat = splineface::io::read_input(model, splineface::io::MAX_DATA_INPUT_BYTES)
+        .with_context(|| format!("cannot read {}", model.display()))?;
+    if dat.starts_with(splineface::landmarker::COMPACT_MAGIC) {
+        bail!("{}: it is already in the compact form", model.display());
+    }
+    let source = ModelSource::of(&dat);
+    if let Ok(file) = std::fs::File::open(out)
+        && let Ok(length) = file.metadata().map(|m| m.len())
+        && let Ok((_, recorded)) = ShapePredictor::read_compact(std::io::BufReader::new(file), length)
+        && recorded == source
+    {
+        println!(
+            "{} is up to date (made from this {})",
+            out.display(),
+            model.display()
+        );
+        return Ok(());
+    }
+    let predictor = ShapePredictor::parse(&dat).map_err(|problem| splineface::landmarker::ModelError {
+        file: model.to_path_buf(),
+        problem,
+    })?;
+    drop(dat);
+    write_files(&[(out.to_path_buf(), predictor.to_compact(source))])?;
+    println!("{}", out.display());
     Ok(())
 }
 

@@ -597,10 +597,14 @@ pub struct ReferenceScan {
 
 /// The FNV-1a 64-bit hash of `bytes` as 16 hex digits (for [`ReferenceSource::mesh_fnv1a64`]).
 pub fn fnv1a64(bytes: &[u8]) -> String {
-    let hash = bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
+    format!("{:016x}", fnv1a64_value(bytes))
+}
+
+/// The FNV-1a 64-bit hash of `bytes`.
+pub fn fnv1a64_value(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
         (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    });
-    format!("{hash:016x}")
+    })
 }
 
 fn check_option(

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use splineface::landmarker::{FaceBox, Intensity, ModelProblem, ShapePredictor};
+use splineface::landmarker::{COMPACT_MAGIC, FaceBox, Intensity, ModelProblem, ModelSource, ShapePredictor};
 
 /// dlib's integer encoding.
 fn int(out: &mut Vec<u8>, value: i64) {
@@ -144,6 +144,74 @@ fn damaged_models_are_errors() {
     assert!(ShapePredictor::parse(&bad).is_err());
     let missing = ShapePredictor::read(Path::new("/nonexistent/model.dat")).unwrap_err();
     assert!(missing.to_string().contains("model.dat"));
+}
+
+#[test]
+fn the_compact_form_holds_the_same_model_and_refuses_damage() {
+    let dat = tiny_model();
+    let model = ShapePredictor::parse(&dat).unwrap();
+    let source = ModelSource::of(&dat);
+    let compact = model.to_compact(source);
+    assert!(compact.starts_with(COMPACT_MAGIC));
+    // The same model, and the source it came from.
+    let (again, recorded) = ShapePredictor::read_compact(compact.as_slice(), compact.len() as u64).unwrap();
+    assert_eq!(again, model);
+    assert_eq!(recorded, source);
+    // read() tells the forms apart by their first bytes.
+    let dir = std::env::temp_dir().join(format!("splineface-compact-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("model.sfsp"), &compact).unwrap();
+    std::fs::write(dir.join("model.dat"), &dat).unwrap();
+    assert_eq!(ShapePredictor::read(&dir.join("model.sfsp")).unwrap(), model);
+    assert_eq!(ShapePredictor::read(&dir.join("model.dat")).unwrap(), model);
+    // Every cut is an error, never a panic.
+    for cut in 0..compact.len() {
+        let damaged = &compact[..cut];
+        assert!(
+            ShapePredictor::read_compact(damaged, damaged.len() as u64).is_err(),
+            "cut at {cut}"
+        );
+    }
+    // Bytes after the end, a count beyond the file, an anchor or a split index out of range.
+    let mut longer = compact.clone();
+    longer.push(0);
+    assert!(ShapePredictor::read_compact(longer.as_slice(), longer.len() as u64).is_err());
+    let header = 16 + 16; // magic, source
+    let mut huge = compact.clone();
+    huge[header + 4..header + 8].copy_from_slice(&u32::MAX.to_le_bytes()); // cascades
+    assert!(ShapePredictor::read_compact(huge.as_slice(), huge.len() as u64).is_err());
+    let first_anchor = header + 8 + 4 * 4 + 4; // counts, mean shape, feature count
+    let mut anchor = compact.clone();
+    anchor[first_anchor..first_anchor + 4].copy_from_slice(&7u32.to_le_bytes());
+    let error = ShapePredictor::read_compact(anchor.as_slice(), anchor.len() as u64).unwrap_err();
+    assert!(error.to_string().contains("anchor"), "{error}");
+    let first_split = first_anchor + 2 * 4 + 4 * 4 + 4 + 4; // anchors, deltas, tree count, split count
+    let mut split = compact.clone();
+    split[first_split..first_split + 4].copy_from_slice(&2u32.to_le_bytes());
+    let error = ShapePredictor::read_compact(split.as_slice(), split.len() as u64).unwrap_err();
+    assert!(error.to_string().contains("feature pixel"), "{error}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+#[ignore = "needs ../shared (the model)"]
+fn the_compact_form_of_dlibs_model_is_the_same_model() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let path = shared.join("models/shape_predictor_68_face_landmarks.dat");
+    let dat = std::fs::read(&path).unwrap();
+    let model = ShapePredictor::parse(&dat).unwrap();
+    let compact = model.to_compact(ModelSource::of(&dat));
+    let (again, source) = ShapePredictor::read_compact(compact.as_slice(), compact.len() as u64).unwrap();
+    assert_eq!(source.bytes, dat.len() as u64);
+    assert!(
+        again == model,
+        "the compact form holds the same trees, bit for bit"
+    );
+    println!(
+        "dlib's model: {} bytes as .dat, {} in the compact form",
+        dat.len(),
+        compact.len()
+    );
 }
 
 /// One face of the fixture: the image file, the box, dlib's 68 points.
