@@ -1121,8 +1121,10 @@ fn reconstruct_command(
     out: &Path,
     output: &OutputArgs,
 ) -> Result<()> {
+    let start = std::time::Instant::now();
     let options = output.options()?;
     check_output_dir(out)?;
+    let model_start = std::time::Instant::now();
     let predictor = match landmark_model {
         Some(path) => {
             progress(&format!("reading the landmark model {}", path.display()));
@@ -1130,6 +1132,7 @@ fn reconstruct_command(
         }
         None => None,
     };
+    let model_seconds = predictor.is_some().then(|| model_start.elapsed().as_secs_f64());
     let reference = match reference_path {
         Some(path) => {
             let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
@@ -1142,6 +1145,10 @@ fn reconstruct_command(
     let photo_paths = photo_list(photos, photo_dir)?;
     let mut inputs = Vec::new();
     let mut records: Vec<PhotoRecord> = Vec::new();
+    // Wall time of the photos' decoding, detection and landmarks, and per photo its
+    // [decoding, detection, landmarks] seconds.
+    let mut photo_seconds: Option<f64> = None;
+    let mut photo_timings: Vec<(String, [f64; 3])> = Vec::new();
     let mut skipped: Vec<String> = Vec::new();
     let mut warnings: Vec<String> = Vec::new();
     if photo_paths.is_empty() {
@@ -1183,6 +1190,7 @@ fn reconstruct_command(
         // Photos are known by their stems (landmark files are matched by them, and the report
         // names them): a second photo with a stem already taken is skipped.
         let mut stems: std::collections::BTreeMap<String, &Path> = std::collections::BTreeMap::new();
+        let mut unique: Vec<(&Path, String)> = Vec::new();
         for path in &photo_paths {
             let stem = photo_stem(path);
             if let Some(first) = stems.get(&stem) {
@@ -1194,73 +1202,29 @@ fn reconstruct_command(
                 continue;
             }
             stems.insert(stem.clone(), path);
-            let file = landmark_dir.and_then(|dir| landmark_file(dir, &stem));
-            let decoded = match splineface::align::decode_photo(path) {
-                Ok(d) => d,
-                Err(e) => {
-                    let reason = e.problem.to_string();
-                    skipped.push(e.to_string());
-                    records.push(PhotoRecord::skipped(&stem, None, reason));
-                    continue;
-                }
-            };
-            let mut skip = |reason: String, records: &mut Vec<PhotoRecord>| {
-                skipped.push(format!("{}: {reason}", path.display()));
-                records.push(PhotoRecord::skipped(&stem, Some(decoded.to_rgb8()), reason));
-            };
-            let (points, record) = match (file, &predictor) {
-                (Some(file), _) => match read_photo_points(&file) {
-                    Ok(points) => {
-                        // The file's own points for the overlay (68 or 40), as read.
-                        let raw = splineface::landmarks::read_pts(&file)
-                            .map(|p| p.into_iter().collect())
-                            .unwrap_or_else(|_| points.points.clone());
-                        let record = PhotoRecord {
-                            landmarks: raw,
-                            skipped: None,
-                            ..PhotoRecord::skipped(&stem, None, String::new())
-                        };
-                        (points, record)
-                    }
-                    Err(e) => {
-                        skip(format!("its landmarks: {e:#}"), &mut records);
-                        continue;
-                    }
-                },
-                (None, Some(model)) => match find_landmarks(model, &decoded, &stem) {
-                    Ok((points, found)) => {
-                        if let Some(note) = &found.note {
-                            progress(&format!("{}: {note}", path.display()));
-                            warnings.push(format!("{}: {note}", path.display()));
-                        }
-                        (points, PhotoRecord::from_detection(&stem, &found))
-                    }
-                    Err(reason) => {
-                        skip(reason, &mut records);
-                        continue;
-                    }
-                },
-                (None, None) => {
-                    skip(
-                        format!(
-                            "no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
-                            landmark_dir.map_or_else(String::new, |d| d.display().to_string())
-                        ),
-                        &mut records,
-                    );
-                    continue;
-                }
-            };
-            match PhotoImage::from_dynamic(&decoded) {
-                Ok(image) => {
-                    inputs.push(Input {
-                        points: PhotoPoints { name: stem, ..points },
-                        image: Some(image),
-                    });
-                    records.push(record);
-                }
-                Err(e) => skip(e.to_string(), &mut records),
+            unique.push((path, stem));
+        }
+        // Decoded, detected and landmarked in parallel; gathered in the photos' order.
+        use rayon::prelude::*;
+        let start = std::time::Instant::now();
+        let prepared: Vec<Prepared> = unique
+            .par_iter()
+            .map(|(path, stem)| prepare_photo(path, stem, landmark_dir, predictor.as_ref()))
+            .collect();
+        photo_seconds = Some(start.elapsed().as_secs_f64());
+        for p in prepared {
+            if let Some(note) = p.warning {
+                progress(&note);
+                warnings.push(note);
             }
+            if let Some(why) = p.skipped {
+                skipped.push(why);
+            }
+            if let Some(input) = p.input {
+                inputs.push(input);
+            }
+            photo_timings.push((p.record.name.clone(), p.seconds));
+            records.push(p.record);
         }
     }
     for s in &skipped {
@@ -1285,10 +1249,10 @@ fn reconstruct_command(
     }
     let mut options = options;
     options.expression_of = output.expression_photo(&inputs)?;
-    let start = std::time::Instant::now();
     let result = reconstruct(&inputs, &reference, &options, progress)?;
     let mut files = result.files()?;
     progress("drawing the overlays and the report page");
+    let overlay_start = std::time::Instant::now();
     let photo_outputs = photo_files(
         &records,
         Path::new("landmarks"),
@@ -1296,16 +1260,45 @@ fn reconstruct_command(
         Some(&result),
         &mut warnings,
     );
-    if !skipped.is_empty() || !warnings.is_empty() {
-        // Record the skipped photos and detection warnings in the report.
-        if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
-            let mut report: serde_json::Value = serde_json::from_slice(bytes)?;
+    let overlay_seconds = overlay_start.elapsed().as_secs_f64();
+    // Record the skipped photos, detection warnings and the photo stages' times in the report.
+    let mut front_stages: Vec<serde_json::Value> = Vec::new();
+    if let Some(seconds) = model_seconds {
+        front_stages.push(serde_json::json!({ "stage": "landmark model", "ms": 1e3 * seconds }));
+    }
+    if let Some(seconds) = photo_seconds {
+        front_stages.push(serde_json::json!({
+            "stage": "photos: decoding, detection, landmarks (in parallel)",
+            "ms": 1e3 * seconds,
+        }));
+    }
+    if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
+        let mut report: serde_json::Value = serde_json::from_slice(bytes)?;
+        if !skipped.is_empty() {
             report["photos_skipped"] = skipped.clone().into();
-            if let Some(list) = report["warnings"].as_array_mut() {
-                list.extend(warnings.iter().map(|w| serde_json::Value::from(w.as_str())));
-            }
-            *bytes = serde_json::to_vec_pretty(&report)?;
         }
+        if let Some(list) = report["warnings"].as_array_mut() {
+            list.extend(warnings.iter().map(|w| serde_json::Value::from(w.as_str())));
+        }
+        if let Some(list) = report["timings"].as_array_mut() {
+            list.splice(0..0, front_stages);
+            list.push(serde_json::json!({ "stage": "overlays", "ms": 1e3 * overlay_seconds }));
+        }
+        if !photo_timings.is_empty() {
+            report["photo_timings"] = photo_timings
+                .iter()
+                .map(|(name, [decode, detect, landmark])| {
+                    serde_json::json!({
+                        "name": name,
+                        "decoding_ms": 1e3 * decode,
+                        "detection_ms": 1e3 * detect,
+                        "landmarks_ms": 1e3 * landmark,
+                    })
+                })
+                .collect::<Vec<_>>()
+                .into();
+        }
+        *bytes = serde_json::to_vec_pretty(&report)?;
     }
     files.extend(photo_outputs);
     let page = splineface::report::report_page(
@@ -1359,6 +1352,16 @@ fn reconstruct_command(
     );
     println!("  files      {}", files.len());
     println!("  time       {:.2} s", start.elapsed().as_secs_f64());
+    // Every stage's time, as report.json has them.
+    if let Some((_, bytes)) = files.iter().find(|(p, _)| p == Path::new("report.json"))
+        && let Ok(report) = serde_json::from_slice::<serde_json::Value>(bytes)
+    {
+        for stage in report["timings"].as_array().into_iter().flatten() {
+            if let (Some(name), Some(ms)) = (stage["stage"].as_str(), stage["ms"].as_f64()) {
+                println!("    {ms:>8.0} ms  {name}");
+            }
+        }
+    }
     Ok(())
 }
 
@@ -1669,7 +1672,7 @@ fn landmarks_command(
         };
         progress(&format!("landmarking {}", path.display()));
         match find_landmarks(&model, &decoded, &stem) {
-            Ok((_, found)) => {
+            Ok((_, found, _)) => {
                 found_any = true;
                 let b = found.face.bbox;
                 let mut line = format!(
@@ -1722,17 +1725,124 @@ fn landmarks_command(
     Ok(())
 }
 
-/// Detects the faces in a photo and landmarks the subject's ([`splineface::detect::landmark_subject`]):
-/// its 40 points, and the detector's answer (box, 68 points, a note when smaller faces were
-/// ignored).
+/// Detects the faces in a photo and landmarks the subject's (as
+/// [`splineface::detect::landmark_subject`]): its 40 points, the detector's answer (box, 68
+/// points, a note when smaller faces were ignored), and the seconds the detection and the
+/// landmarks took.
 fn find_landmarks(
     model: &splineface::landmarker::ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
-) -> std::result::Result<(PhotoPoints, splineface::detect::LandmarkedFace), String> {
-    let found = splineface::detect::landmark_subject(model, image)?;
+) -> std::result::Result<(PhotoPoints, splineface::detect::LandmarkedFace, [f64; 2]), String> {
+    let start = std::time::Instant::now();
+    let faces = splineface::detect::detect_faces(&image.to_luma8());
+    let (face, note) = splineface::detect::subject_face(&faces).map_err(|e| e.to_string())?;
+    let detection = start.elapsed().as_secs_f64();
+    let start = std::time::Instant::now();
+    let found = splineface::detect::landmark_face(model, &image.to_rgb8(), face)?;
+    let found = splineface::detect::LandmarkedFace { note, ..found };
     let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
-    Ok((points, found))
+    Ok((points, found, [detection, start.elapsed().as_secs_f64()]))
+}
+
+/// One photo made ready for the reconstruction ([`prepare_photo`]).
+struct Prepared {
+    record: PhotoRecord,
+    /// The photo and its points, unless it was skipped.
+    input: Option<Input>,
+    /// Why it was skipped (`path: reason`).
+    skipped: Option<String>,
+    /// A detection note (`path: note`).
+    warning: Option<String>,
+    /// Seconds of decoding, detection and landmarks.
+    seconds: [f64; 3],
+}
+
+/// Decodes a photo and finds its points: from its landmark file in `landmark_dir`, else by
+/// detection and `predictor`.
+fn prepare_photo(
+    path: &Path,
+    stem: &str,
+    landmark_dir: Option<&Path>,
+    predictor: Option<&splineface::landmarker::ShapePredictor>,
+) -> Prepared {
+    let start = std::time::Instant::now();
+    let decoded = match splineface::align::decode_photo(path) {
+        Ok(d) => d,
+        Err(e) => {
+            return Prepared {
+                record: PhotoRecord::skipped(stem, None, e.problem.to_string()),
+                input: None,
+                skipped: Some(e.to_string()),
+                warning: None,
+                seconds: [start.elapsed().as_secs_f64(), 0.0, 0.0],
+            };
+        }
+    };
+    let mut seconds = [start.elapsed().as_secs_f64(), 0.0, 0.0];
+    let skip = |reason: String, seconds: [f64; 3]| Prepared {
+        skipped: Some(format!("{}: {reason}", path.display())),
+        record: PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason),
+        input: None,
+        warning: None,
+        seconds,
+    };
+    let file = landmark_dir.and_then(|dir| landmark_file(dir, stem));
+    let mut warning = None;
+    let (points, record) = match (file, predictor) {
+        (Some(file), _) => match read_photo_points(&file) {
+            Ok(points) => {
+                // The file's own points for the overlay (68 or 40), as read.
+                let raw = splineface::landmarks::read_pts(&file).unwrap_or_else(|_| points.points.clone());
+                let record = PhotoRecord {
+                    landmarks: raw,
+                    skipped: None,
+                    ..PhotoRecord::skipped(stem, None, String::new())
+                };
+                (points, record)
+            }
+            Err(e) => return skip(format!("its landmarks: {e:#}"), seconds),
+        },
+        (None, Some(model)) => match find_landmarks(model, &decoded, stem) {
+            Ok((points, found, [detection, landmarks])) => {
+                seconds[1] = detection;
+                seconds[2] = landmarks;
+                if let Some(note) = &found.note {
+                    warning = Some(format!("{}: {note}", path.display()));
+                }
+                (points, PhotoRecord::from_detection(stem, &found))
+            }
+            Err(reason) => return skip(reason, seconds),
+        },
+        (None, None) => {
+            return skip(
+                format!(
+                    "no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
+                    landmark_dir.map_or_else(String::new, |d| d.display().to_string())
+                ),
+                seconds,
+            );
+        }
+    };
+    match PhotoImage::from_dynamic(&decoded) {
+        Ok(image) => Prepared {
+            record,
+            input: Some(Input {
+                points: PhotoPoints {
+                    name: stem.to_owned(),
+                    ..points
+                },
+                image: Some(image),
+            }),
+            skipped: None,
+            warning,
+            seconds,
+        },
+        Err(e) => Prepared {
+            warning,
+            ..skip(e.to_string(), seconds)
+        },
+    }
 }
 
 /// One photo as read and landmarked: what its overlay and landmark file are made of.
