@@ -1654,59 +1654,75 @@ fn landmarks_command(
     let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
     let mut lines: Vec<String> = Vec::new();
     let mut found_any = false;
+    // One photo a name; the photos decoded, detected and landmarked in parallel, gathered in
+    // their order.
+    let mut names = std::collections::BTreeSet::new();
+    let mut unique: Vec<(&Path, String)> = Vec::new();
     for path in &paths {
         let stem = photo_stem(path);
-        if records.iter().any(|r| r.name == stem) {
+        if names.insert(stem.clone()) {
+            unique.push((path, stem));
+        } else {
             lines.push(format!(
                 "{}: skipped: another photo has the name `{stem}`",
                 path.display()
             ));
-            continue;
         }
-        let decoded = match splineface::align::decode_photo(path) {
-            Ok(d) => d,
-            Err(e) => {
-                lines.push(format!("{}: skipped: {}", path.display(), e.problem));
-                continue;
-            }
-        };
-        progress(&format!("landmarking {}", path.display()));
-        match find_landmarks(&model, &decoded, &stem) {
-            Ok((_, found, _)) => {
-                found_any = true;
-                let b = found.face.bbox;
-                let mut line = format!(
-                    "{}: 68 points, face box {}×{} at ({}, {}), mirror disagreement {:.1}% of the eye width",
-                    path.display(),
-                    b.right - b.left + 1,
-                    b.bottom - b.top + 1,
-                    b.left,
-                    b.top,
-                    100.0 * found.disagreement
-                );
-                if let Some(note) = &found.note {
-                    line.push_str(&format!("; {note}"));
-                }
-                lines.push(line);
-                if json {
-                    let landmarks = splineface::landmarks::Landmarks {
-                        scheme: splineface::landmarks::Scheme::Ibug68,
-                        points: splineface::landmarks::LandmarkPoints::Planar(found.ibug.clone()),
+    }
+    use rayon::prelude::*;
+    type Landmarked = (String, Option<PhotoRecord>, Option<(PathBuf, Vec<u8>)>);
+    let results: Vec<Landmarked> = unique
+        .par_iter()
+        .map(|(path, stem)| -> Result<Landmarked> {
+            let decoded = match splineface::align::decode_photo(path) {
+                Ok(d) => d,
+                Err(e) => return Ok((format!("{}: skipped: {}", path.display(), e.problem), None, None)),
+            };
+            match find_landmarks(&model, &decoded, stem) {
+                Ok((_, found, _)) => {
+                    let b = found.face.bbox;
+                    let mut line = format!(
+                        "{}: 68 points, face box {}×{} at ({}, {}), mirror disagreement {:.1}% of the eye width",
+                        path.display(),
+                        b.right - b.left + 1,
+                        b.bottom - b.top + 1,
+                        b.left,
+                        b.top,
+                        100.0 * found.disagreement
+                    );
+                    if let Some(note) = &found.note {
+                        line.push_str(&format!("; {note}"));
+                    }
+                    let json_file = if json {
+                        let landmarks = splineface::landmarks::Landmarks {
+                            scheme: splineface::landmarks::Scheme::Ibug68,
+                            points: splineface::landmarks::LandmarkPoints::Planar(found.ibug.clone()),
+                        };
+                        let text = splineface::landmarks::format_landmarks_json(&landmarks)
+                            .with_context(|| format!("{}: its landmarks", path.display()))?;
+                        Some((PathBuf::from(format!("{stem}.json")), text.into_bytes()))
+                    } else {
+                        None
                     };
-                    let text = splineface::landmarks::format_landmarks_json(&landmarks)
-                        .with_context(|| format!("{}: its landmarks", path.display()))?;
-                    files.push((PathBuf::from(format!("{stem}.json")), text.into_bytes()));
+                    let record = PhotoRecord {
+                        image: Some(decoded.to_rgb8()),
+                        ..PhotoRecord::from_detection(stem, &found)
+                    };
+                    Ok((line, Some(record), json_file))
                 }
-                records.push(PhotoRecord {
-                    image: Some(decoded.to_rgb8()),
-                    ..PhotoRecord::from_detection(&stem, &found)
-                });
+                Err(reason) => Ok((
+                    format!("{}: skipped: {reason}", path.display()),
+                    Some(PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason)),
+                    None,
+                )),
             }
-            Err(reason) => {
-                lines.push(format!("{}: skipped: {reason}", path.display()));
-                records.push(PhotoRecord::skipped(&stem, Some(decoded.to_rgb8()), reason));
-            }
-        }
+        })
+        .collect::<Result<_>>()?;
+    for (line, record, json_file) in results {
+        lines.push(line);
+        found_any |= record.as_ref().is_some_and(|r| r.detected);
+        records.extend(record);
+        files.extend(json_file);
     }
     if !found_any {
         bail!(
