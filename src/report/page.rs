@@ -576,36 +576,18 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
             } else if texture.is_null() {
                 "none".to_owned()
             } else {
+                let percent = |key: &str| {
+                    texture[key]
+                        .as_f64()
+                        .filter(|v| v.is_finite())
+                        .map_or_else(|| "–".to_owned(), |v| format!("{:.1}", 100.0 * v))
+                };
                 format!(
                     "{0}×{0}: {1}% seen, {2}% mirrored, {3}% filled",
                     texture["size"].as_u64().unwrap_or(0),
-                    number(
-                        texture
-                            .get("seen")
-                            .and_then(Value::as_f64)
-                            .map(|v| 100.0 * v)
-                            .map(Value::from)
-                            .as_ref(),
-                        1
-                    ),
-                    number(
-                        texture
-                            .get("mirrored")
-                            .and_then(Value::as_f64)
-                            .map(|v| 100.0 * v)
-                            .map(Value::from)
-                            .as_ref(),
-                        1
-                    ),
-                    number(
-                        texture
-                            .get("filled")
-                            .and_then(Value::as_f64)
-                            .map(|v| 100.0 * v)
-                            .map(Value::from)
-                            .as_ref(),
-                        1
-                    ),
+                    percent("seen"),
+                    percent("mirrored"),
+                    percent("filled"),
                 )
             },
         ),
