@@ -1034,28 +1034,39 @@ fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
     Ok(files)
 }
 
-/// A photo's 40 points from a landmark file: `.pts` (68 iBUG or 40 structure points) or JSON.
-fn read_photo_points(path: &Path) -> Result<PhotoPoints> {
+/// A photo's 40 points from a landmark file: `.pts` (68 iBUG or 40 structure points) or JSON;
+/// and the file's own points as read (68 or 40, for the photo's overlay).
+fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<nalgebra::Point2<f64>>)> {
     let name = path.file_stem().map_or_else(
         || path.display().to_string(),
         |s| s.to_string_lossy().into_owned(),
     );
-    let points = if has_extension(path, &["json"]) {
-        read_landmarks_json(path)?
+    let (points, raw) = if has_extension(path, &["json"]) {
+        let landmarks = read_landmarks_json(path)?;
+        let points = landmarks
             .structure_2d()
-            .with_context(|| format!("{}: 2D landmarks are needed", path.display()))?
+            .with_context(|| format!("{}: 2D landmarks are needed", path.display()))?;
+        let raw = match landmarks.points {
+            splineface::landmarks::LandmarkPoints::Planar(raw) => raw,
+            splineface::landmarks::LandmarkPoints::Spatial(_) => points.clone(),
+        };
+        (points, raw)
     } else {
-        let points = splineface::landmarks::read_pts(path)?;
-        match points.len() {
-            68 => from_ibug68(&points).with_context(|| path.display().to_string())?,
-            40 => points,
+        let raw = splineface::landmarks::read_pts(path)?;
+        let points = match raw.len() {
+            68 => from_ibug68(&raw).with_context(|| path.display().to_string())?,
+            40 => raw.clone(),
             n => bail!(
                 "{}: {n} points; expected 68 (iBUG) or 40 (the structure)",
                 path.display()
             ),
-        }
+        };
+        (points, raw)
     };
-    PhotoPoints::new(name, points).with_context(|| path.display().to_string())
+    Ok((
+        PhotoPoints::new(name, points).with_context(|| path.display().to_string())?,
+        raw,
+    ))
 }
 
 /// The landmark file for a photo stem in `dir`: `STEM.pts` or `STEM.json`.
@@ -1164,7 +1175,7 @@ fn reconstruct_command(
         progress(&format!("points only: {} landmark files", files.len()));
         for file in files {
             match read_photo_points(&file) {
-                Ok(points) => {
+                Ok((points, _)) => {
                     if inputs.iter().any(|i: &Input| i.points.name == points.name) {
                         skipped.push(format!(
                             "{}: another landmark file has the name `{}` (STEM.pts and STEM.json?)",
@@ -1431,11 +1442,7 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
     let records: Vec<PhotoRecord> = scene
         .inputs
         .iter()
-        .map(|input| PhotoRecord {
-            landmarks: input.points.points.clone(),
-            skipped: None,
-            ..PhotoRecord::skipped(&input.points.name, None, String::new())
-        })
+        .map(|input| PhotoRecord::given(&input.points.name, input.points.points.clone()))
         .collect();
     let mut warnings = Vec::new();
     let mut reconstruction_files = result.files()?;
@@ -1807,16 +1814,7 @@ fn prepare_photo(
     let mut warning = None;
     let (points, record) = match (file, predictor) {
         (Some(file), _) => match read_photo_points(&file) {
-            Ok(points) => {
-                // The file's own points for the overlay (68 or 40), as read.
-                let raw = splineface::landmarks::read_pts(&file).unwrap_or_else(|_| points.points.clone());
-                let record = PhotoRecord {
-                    landmarks: raw,
-                    skipped: None,
-                    ..PhotoRecord::skipped(stem, None, String::new())
-                };
-                (points, record)
-            }
+            Ok((points, raw)) => (points, PhotoRecord::given(stem, raw)),
             Err(e) => return skip(format!("its landmarks: {e:#}"), seconds),
         },
         (None, Some(model)) => match find_landmarks(model, &decoded, stem) {
@@ -1878,6 +1876,18 @@ struct PhotoRecord {
 }
 
 impl PhotoRecord {
+    /// A photo whose landmarks were given (a landmark file, the demo's points), not detected.
+    fn given(name: &str, landmarks: Vec<nalgebra::Point2<f64>>) -> Self {
+        PhotoRecord {
+            name: name.to_owned(),
+            image: None,
+            face_box: None,
+            landmarks,
+            detected: false,
+            skipped: None,
+        }
+    }
+
     fn skipped(name: &str, image: Option<image::RgbImage>, reason: String) -> Self {
         PhotoRecord {
             name: name.to_owned(),
