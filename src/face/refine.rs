@@ -707,24 +707,44 @@ impl Samples {
         self.base.len()
     }
 
-    /// Sample `s` of photo `i` in `state`.
-    fn point(&self, s: usize, i: usize, state: &State) -> Point3<Real> {
-        let mut p = self.base[s];
-        for (d, wk) in self.modes[s].iter().zip(&state.weights) {
-            p += d * *wk;
-        }
+    /// Sample `s` of photo `i`, the samples [`Samples::placed`] at a state.
+    fn point(&self, placed: &[Placed], s: usize, i: usize) -> Point3<Real> {
+        let (identity, lift) = placed[s];
+        let mut p = identity;
         if let Some(e) = self.expression.get(i) {
             p += e[s];
         }
-        if !state.field.is_empty() {
-            p.z += self.basis[s]
-                .iter()
-                .map(|&(c, b)| b * state.field[c])
-                .sum::<Real>();
-        }
+        p.z += lift;
         p
     }
+
+    /// Every sample's identity point at `state` (the base and the weighted modes) and the
+    /// field's lift along `z`: what [`Samples::point`] adds each photo's expression to, formed
+    /// once per state rather than once per photo.
+    fn placed(&self, state: &State) -> Vec<Placed> {
+        (0..self.len())
+            .into_par_iter()
+            .map(|s| {
+                let mut p = self.base[s];
+                for (d, wk) in self.modes[s].iter().zip(&state.weights) {
+                    p += d * *wk;
+                }
+                let lift = if state.field.is_empty() {
+                    0.0
+                } else {
+                    self.basis[s]
+                        .iter()
+                        .map(|&(c, b)| b * state.field[c])
+                        .sum::<Real>()
+                };
+                (p, lift)
+            })
+            .collect()
+    }
 }
+
+/// A sample's identity point and its field lift ([`Samples::placed`]).
+type Placed = (Point3<Real>, Real);
 
 /// Each sample's neighbours within two window deviations on the sample grid (`cells`, the
 /// samples' grid coordinates), with their Gaussian weights: the window of the local
@@ -1044,6 +1064,7 @@ impl Level<'_> {
     /// Which photos see which samples under `state`: per photo, a weight per sample (how
     /// squarely it is seen, 0 when facing away or hidden), times the photo's weight.
     fn visibility(&self, state: &State) -> Vec<Vec<Real>> {
+        let placed = self.samples.placed(state);
         state
             .cameras
             .par_iter()
@@ -1054,7 +1075,7 @@ impl Level<'_> {
                 let mut seen = vec![0.0; n];
                 let mut places = Vec::with_capacity(n);
                 for (s, item) in seen.iter_mut().enumerate() {
-                    let x = self.samples.point(s, i, state);
+                    let x = self.samples.point(&placed, s, i);
                     let Some(Projected { q, p, .. }) = camera.project(&x) else {
                         places.push(None);
                         continue;
@@ -1141,6 +1162,7 @@ impl Level<'_> {
             // The images are normalised already.
             return vec![vec![(0.0, 1.0); self.samples.len()]; state.cameras.len()];
         }
+        let placed = self.samples.placed(state);
         let raw: Vec<Vec<Option<Real>>> = state
             .cameras
             .par_iter()
@@ -1152,7 +1174,7 @@ impl Level<'_> {
                         if visibility[i][s] <= 0.0 {
                             return None;
                         }
-                        let x = self.samples.point(s, i, state);
+                        let x = self.samples.point(&placed, s, i);
                         let projected = camera.project(&x)?;
                         image.sample(&image.crop_of(&projected.p)).map(|(v, _)| v)
                     })
@@ -1199,6 +1221,7 @@ impl Level<'_> {
     fn seen(
         &self,
         state: &State,
+        placed: &[Placed],
         visibility: &[Vec<Real>],
         normalisers: &[Vec<(Real, Real)>],
         s: usize,
@@ -1210,7 +1233,7 @@ impl Level<'_> {
             if c <= 0.0 {
                 continue;
             }
-            let x = self.samples.point(s, i, state);
+            let x = self.samples.point(placed, s, i);
             let Some(projected) = camera.project(&x) else {
                 continue;
             };
@@ -1266,10 +1289,11 @@ impl Level<'_> {
         f: impl Fn(&[Seen], Real, Real) -> T + Sync,
     ) -> Vec<Option<T>> {
         let normalisers = self.normalisers(state, visibility);
+        let placed = self.samples.placed(state);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
-                let seen = self.seen(state, visibility, &normalisers, s, false);
+                let seen = self.seen(state, &placed, visibility, &normalisers, s, false);
                 let (total, mean) = agreement(&seen)?;
                 Some(f(&seen, total, mean))
             })
@@ -1380,123 +1404,128 @@ impl Level<'_> {
     /// and gradient `g`. `loss` is `(β / σ², c)`: the residuals' scale and the Cauchy loss's
     /// parameter.
     ///
-    /// A view's residual is `N − μ` with the views' weighted mean `μ` eliminated, so its
-    /// Jacobian is its own less the views' mean. Along the identity weights that Jacobian is
-    /// `(∂N/∂X − mean)ᵀ Mₛ` with `Mₛ` the sample's `3 × k` mode displacements, the same for
-    /// every view: the sample's whole identity block is `Mₛᵀ A Mₛ` with `A` the `3 × 3` sum of
-    /// the views' weighted outer products, and its cross terms with a view's camera and with
-    /// the displacement field are rank one. Only the cameras' and the field's columns are
-    /// formed row by row. (Forming every row in full and its Gram matrix cost about ten times
-    /// as much with eight photos and sixty modes.)
+    /// View `a`'s residual is `rootₐ (Nₐ − μ)`, `rootₐ² = ρₐ` its weight (visibility, scale and
+    /// the loss's reweighting), with the views' weighted mean `μ = Σ sₐ Nₐ` eliminated (`sₐ` a
+    /// view's share of the summed visibility): its Jacobian is its own less the mean's. With
+    /// `qₐ = ∂Nₐ/∂X − Σ sᵦ ∂Nᵦ/∂X` and `Mₛ` the sample's `3 × k` mode displacements (the same
+    /// for every view), `cₐ` the view's camera Jacobian and `βₑ` the field's basis values,
+    /// every block of the sample's Gram matrix is a small closed form:
+    ///
+    /// ```text
+    /// identity × identity   Mₛᵀ A Mₛ,                 A = Σ ρₐ qₐ qₐᵀ  (3 × 3)
+    /// identity × camera b   (Mₛᵀ (ρ_b q_b − s_b u)) c_bᵀ,    u = Σ ρₐ qₐ
+    /// identity × field      (Mₛᵀ A e_z) βᵀ
+    /// camera b × camera b'  δ_bb' ρ_b c_b c_bᵀ + (S s_b s_b' − ρ_b s_b' − ρ_b' s_b) c_b c_b'ᵀ,  S = Σ ρₐ
+    /// camera b × field      (ρ_b q_b,z − s_b u_z) c_b βᵀ
+    /// field × field         A_zz β βᵀ
+    /// ```
+    ///
+    /// and the gradient `Mₛᵀ b`, `(ρ_b r_b − s_b R) c_b` and `b_z β` with `b = Σ ρₐ rₐ qₐ`,
+    /// `R = Σ ρₐ rₐ`. Forming every residual's full row and its Gram matrix, as the objective
+    /// reads, cost about ten times as much with eight photos and sixty modes.
+    ///
+    /// `modes` are the sample's `k` mode displacements (the identity's columns come first),
+    /// `field` the first of the field's columns, `basis` the sample's field basis values
+    /// (empty without a field).
     #[allow(clippy::too_many_arguments)]
     fn add_sample(
-        &self,
-        state: &State,
-        s: usize,
+        modes: &[Vector3<Real>],
+        field: usize,
+        basis: &[(usize, Real)],
         seen: &[Seen],
-        total: Real,
-        mean: Real,
+        (total, mean): (Real, Real),
         (scale, c): (Real, Real),
-        h: &mut DMatrix<Real>,
-        g: &mut DVector<Real>,
+        (h, g): (&mut DMatrix<Real>, &mut DVector<Real>),
     ) {
-        let k = state.weights.len();
-        let field = k + CAMERA * state.cameras.len();
-        let modes = &self.samples.modes[s];
-        let basis: &[(usize, Real)] = if state.field.is_empty() {
-            &[]
-        } else {
-            &self.samples.basis[s]
-        };
-        let share: Vec<Real> = seen.iter().map(|v| v.weight / total).collect();
-        let mean_point: Vector3<Real> = seen
-            .iter()
-            .zip(&share)
-            .map(|(v, a)| v.d_point * *a)
-            .sum();
-        // Each view's root weight, weighted residual and point Jacobian about the mean.
-        let views: Vec<(Real, Real, Vector3<Real>)> = seen
+        let n = h.nrows();
+        let k = modes.len();
+        let mean_point: Vector3<Real> = seen.iter().map(|v| v.d_point * (v.weight / total)).sum();
+        // Per view: its share, its weight ρ, its residual and its point Jacobian about the mean.
+        let views: Vec<(Real, Real, Real, Vector3<Real>)> = seen
             .iter()
             .map(|v| {
                 let r = v.value - mean;
-                let root = (scale * v.weight * cauchy(r, c)).sqrt();
-                (root, root * r, v.d_point - mean_point)
+                (v.weight / total, scale * v.weight * cauchy(r, c), r, v.d_point - mean_point)
             })
             .collect();
-        let mut a = nalgebra::Matrix3::<Real>::zeros();
-        let mut b = Vector3::<Real>::zeros();
-        let mut u = Vector3::<Real>::zeros();
-        for &(root, residual, q) in &views {
-            a += q * q.transpose() * (root * root);
-            b += q * (root * residual);
-            u += q * (root * root);
+        let (mut a, mut b, mut u) = (nalgebra::Matrix3::<Real>::zeros(), Vector3::zeros(), Vector3::zeros());
+        let (mut weight_sum, mut residual_sum) = (0.0, 0.0);
+        for &(_, rho, r, q) in &views {
+            a += q * q.transpose() * rho;
+            b += q * (rho * r);
+            u += q * rho;
+            weight_sum += rho;
+            residual_sum += rho * r;
         }
-        // The identity block `Mᵀ A M` (upper triangle) and gradient `Mᵀ b`.
+        let hs = h.as_mut_slice();
+        // Identity × identity (column by column, the upper triangle) and its gradient.
         let t: Vec<Vector3<Real>> = modes.iter().map(|m| a * m).collect();
+        for (j, tj) in t.iter().enumerate() {
+            let column = &mut hs[j * n..j * n + j + 1];
+            for (entry, mi) in column.iter_mut().zip(modes) {
+                *entry += mi.dot(tj);
+            }
+        }
         for (i, mi) in modes.iter().enumerate() {
             g[i] += mi.dot(&b);
-            for (j, tj) in t.iter().enumerate().skip(i) {
-                h[(i, j)] += mi.dot(tj);
-            }
         }
-        // Identity × a view's camera: `Mᵀ (root_b² q_b − a_b u) c_bᵀ`.
-        for ((view, &(root, _, q)), a_b) in seen.iter().zip(&views).zip(&share) {
-            let y = q * (root * root) - u * *a_b;
+        // Identity × field, field × field, and the field's gradient.
+        let az = a.column(2).into_owned();
+        for (e, &(cp, value)) in basis.iter().enumerate() {
+            let column = field + cp;
+            for (i, mi) in modes.iter().enumerate() {
+                hs[column * n + i] += mi.dot(&az) * value;
+            }
+            for &(other, other_value) in &basis[..=e] {
+                let (lo, hi) = ((field + other).min(column), (field + other).max(column));
+                hs[hi * n + lo] += a[(2, 2)] * value * other_value;
+            }
+            g[column] += b.z * value;
+        }
+        for (x, (view, &(share_b, rho_b, r_b, q_b))) in seen.iter().zip(&views).enumerate() {
             let base = k + CAMERA * view.photo;
-            for (i, mi) in modes.iter().enumerate() {
-                let my = mi.dot(&y);
-                for (t, d) in view.d_camera.iter().enumerate() {
-                    h[(i, base + t)] += my * d;
+            let camera = &view.d_camera;
+            // Identity × this camera.
+            let y = q_b * rho_b - u * share_b;
+            let my: Vec<Real> = modes.iter().map(|m| m.dot(&y)).collect();
+            for (t, d) in camera.iter().enumerate() {
+                let column = &mut hs[(base + t) * n..(base + t) * n + k];
+                for (entry, m) in column.iter_mut().zip(&my) {
+                    *entry += m * d;
                 }
             }
-        }
-        // Identity × the field: `Mᵀ A e_z` times the basis values.
-        if !basis.is_empty() {
-            let az = a.column(2).into_owned();
-            for (i, mi) in modes.iter().enumerate() {
-                let m_az = mi.dot(&az);
-                for &(cp, value) in basis {
-                    h[(i, field + cp)] += m_az * value;
+            // This camera × the cameras of the views before it and itself (photos in order,
+            // so their columns come first).
+            for (other, &(share_o, rho_o, _, _)) in seen[..=x].iter().zip(&views) {
+                let other_base = k + CAMERA * other.photo;
+                let coefficient = weight_sum * share_b * share_o - rho_b * share_o - rho_o * share_b;
+                let diagonal = if other.photo == view.photo { rho_b } else { 0.0 };
+                for (t, d) in camera.iter().enumerate() {
+                    let column = &mut hs[(base + t) * n..(base + t + 1) * n];
+                    let rows = if other.photo == view.photo { t + 1 } else { CAMERA };
+                    for (o, od) in other.d_camera[..rows].iter().enumerate() {
+                        column[other_base + o] += (coefficient + diagonal) * od * d;
+                    }
                 }
             }
-        }
-        // The cameras' and the field's columns, row by row: a view's row holds its own
-        // camera's Jacobian less every seeing view's share of theirs, and the field's
-        // depth Jacobian about the mean.
-        let cameras = CAMERA * seen.len();
-        let width = cameras + basis.len();
-        let mut rows = DMatrix::<Real>::zeros(seen.len(), width);
-        let mut residuals = DVector::<Real>::zeros(seen.len());
-        for (at, (v, &(root, residual, q))) in seen.iter().zip(&views).enumerate() {
-            residuals[at] = residual;
-            let mut row = rows.row_mut(at);
-            for (w, (other, a_w)) in seen.iter().zip(&share).enumerate() {
-                for t in 0..CAMERA {
-                    let own = if w == at { v.d_camera[t] } else { 0.0 };
-                    row[CAMERA * w + t] = root * (own - a_w * other.d_camera[t]);
+            // This camera × the field.
+            let cross = rho_b * q_b.z - share_b * u.z;
+            for &(cp, value) in basis {
+                let column = &mut hs[(field + cp) * n..(field + cp + 1) * n];
+                for (t, d) in camera.iter().enumerate() {
+                    column[base + t] += cross * d * value;
                 }
             }
-            for (e, &(_, value)) in basis.iter().enumerate() {
-                row[cameras + e] = root * q.z * value;
-            }
-        }
-        let index: Vec<usize> = seen
-            .iter()
-            .flat_map(|v| (0..CAMERA).map(move |t| k + CAMERA * v.photo + t))
-            .chain(basis.iter().map(|&(cp, _)| field + cp))
-            .collect();
-        let gram = rows.tr_mul(&rows);
-        let gradient = rows.tr_mul(&residuals);
-        for (x, &ix) in index.iter().enumerate() {
-            g[ix] += gradient[x];
-            for (y, &iy) in index.iter().enumerate().skip(x) {
-                h[(ix.min(iy), ix.max(iy))] += gram[(x, y)];
+            let gradient = rho_b * r_b - share_b * residual_sum;
+            for (t, d) in camera.iter().enumerate() {
+                g[base + t] += gradient * d;
             }
         }
     }
 
     fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>) {
         let normalisers = self.normalisers(state, visibility);
+        let placed = self.samples.placed(state);
         let k = state.weights.len();
         let n = state.unknowns();
         let field = k + CAMERA * state.cameras.len();
@@ -1513,9 +1542,22 @@ impl Level<'_> {
                 let mut h = DMatrix::<Real>::zeros(n, n);
                 let mut g = DVector::<Real>::zeros(n);
                 for &s in samples {
-                    let seen = self.seen(state, visibility, &normalisers, s, true);
+                    let seen = self.seen(state, &placed, visibility, &normalisers, s, true);
                     if let Some((total, mean)) = agreement(&seen) {
-                        self.add_sample(state, s, &seen, total, mean, (scale, c), &mut h, &mut g);
+                        let basis: &[(usize, Real)] = if state.field.is_empty() {
+                            &[]
+                        } else {
+                            &self.samples.basis[s]
+                        };
+                        Self::add_sample(
+                            &self.samples.modes[s],
+                            field,
+                            basis,
+                            &seen,
+                            (total, mean),
+                            (scale, c),
+                            (&mut h, &mut g),
+                        );
                     }
                 }
                 (h, g)
@@ -1906,6 +1948,77 @@ impl FaceSpace {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// One sample's normal equations by their closed-form blocks against the definition:
+    /// every view's full residual row (the identity through the modes, every seeing view's
+    /// camera, the field) and the sum of their outer products, with the views' photos not
+    /// consecutive and the field's control points out of order.
+    #[test]
+    fn sample_blocks_equal_the_rows_gram_matrix() {
+        let value = |i: usize| ((i * 7919 + 13) % 1009) as Real / 1009.0 - 0.5;
+        let k = 5;
+        let photos = 4;
+        let field = k + CAMERA * photos;
+        let n = field + 6;
+        let modes: Vec<Vector3<Real>> = (0..k)
+            .map(|m| Vector3::new(value(3 * m), value(3 * m + 1), value(3 * m + 2)))
+            .collect();
+        let basis = [(1, 0.3), (4, 0.5), (2, 0.2)];
+        let seen: Vec<Seen> = [0, 2, 3]
+            .iter()
+            .enumerate()
+            .map(|(x, &photo)| Seen {
+                photo,
+                weight: 0.4 + 0.2 * x as Real,
+                value: value(100 + x),
+                d_point: Vector3::new(value(200 + x), value(300 + x), value(400 + x)),
+                d_camera: std::array::from_fn(|t| value(500 + 10 * x + t)),
+            })
+            .collect();
+        let (total, mean) = agreement(&seen).expect("three views");
+        let (scale, c) = (0.7, 1.1);
+        let mut h = DMatrix::zeros(n, n);
+        let mut g = DVector::zeros(n);
+        Level::add_sample(&modes, field, &basis, &seen, (total, mean), (scale, c), (&mut h, &mut g));
+
+        let mut expected_h = DMatrix::<Real>::zeros(n, n);
+        let mut expected_g = DVector::<Real>::zeros(n);
+        let mean_point: Vector3<Real> = seen.iter().map(|v| v.d_point * (v.weight / total)).sum();
+        for (at, v) in seen.iter().enumerate() {
+            let r = v.value - mean;
+            let root = (scale * v.weight * cauchy(r, c)).sqrt();
+            let q = v.d_point - mean_point;
+            let mut row = DVector::<Real>::zeros(n);
+            for (m, mode) in modes.iter().enumerate() {
+                row[m] = root * q.dot(mode);
+            }
+            for (b, u) in seen.iter().enumerate() {
+                for t in 0..CAMERA {
+                    let own = if b == at { v.d_camera[t] } else { 0.0 };
+                    row[k + CAMERA * u.photo + t] = root * (own - u.weight / total * u.d_camera[t]);
+                }
+            }
+            for &(cp, beta) in &basis {
+                row[field + cp] = root * q.z * beta;
+            }
+            expected_h += &row * row.transpose();
+            expected_g += &row * (root * r);
+        }
+        for j in 0..n {
+            for i in 0..=j {
+                assert!(
+                    (h[(i, j)] - expected_h[(i, j)]).abs() < 1e-12,
+                    "H({i}, {j}): {} against {}",
+                    h[(i, j)],
+                    expected_h[(i, j)]
+                );
+            }
+            for i in j + 1..n {
+                assert_eq!(h[(i, j)], 0.0, "only the upper triangle is filled");
+            }
+        }
+        assert!((g - expected_g).amax() < 1e-12);
+    }
 
     /// The separable blur against the Gaussian's definition: every output pixel the
     /// normalised two-dimensional kernel's weighted sum of the input, borders clamped
