@@ -206,16 +206,20 @@ impl FaceTexture {
             seed: 0,
             supersampling: 1,
         };
-        let mut strip = RgbImage::new((SIZE.0 * YAWS.len()) as u32, SIZE.1 as u32);
-        for (k, yaw) in YAWS.into_iter().enumerate() {
-            let camera = Camera::looking_at_head([yaw, 0.0, 0.0], &centre, distance, focal, SIZE);
-            let view =
+        let views: Vec<RgbImage> = YAWS
+            .par_iter()
+            .map(|&yaw| {
+                let camera = Camera::looking_at_head([yaw, 0.0, 0.0], &centre, distance, focal, SIZE);
                 render_photo(&textured, &map, &camera, &lighting, &look).map_err(|e| FaceError::Option {
                     name: "turntable view",
                     value: e.to_string(),
                     expected: "a mesh the renderer accepts",
-                })?;
-            image::imageops::replace(&mut strip, &view, (k * SIZE.0) as i64, 0);
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        let mut strip = RgbImage::new((SIZE.0 * YAWS.len()) as u32, SIZE.1 as u32);
+        for (k, view) in views.iter().enumerate() {
+            image::imageops::replace(&mut strip, view, (k * SIZE.0) as i64, 0);
         }
         Ok(strip)
     }
@@ -244,7 +248,7 @@ fn linear_table() -> [f32; 256] {
 }
 
 fn to_srgb(c: f32) -> u8 {
-    (crate::render::linear_to_srgb(Real::from(c)) * 255.0).round() as u8
+    crate::render::linear_to_srgb8(Real::from(c))
 }
 
 /// Bilinear colour (linear light) at pixel `p` (`y` down, centres at integers), clamped to
@@ -382,21 +386,26 @@ impl DepthBuffer {
     /// Rasterises the quads of the texel grid every [`OCCLUDER_STRIDE`] texels whose corners
     /// lie in the clip region, as the camera sees them (`at` gives each texel's image point
     /// and depth key).
-    fn new(at: &[Option<super::Look>], texels: &Texels, image: (u32, u32)) -> Option<Self> {
+    fn new(
+        look: impl Fn(usize) -> Option<super::Look> + Sync,
+        texels: &Texels,
+        image: (u32, u32),
+    ) -> Option<Self> {
         let side = texels.side;
         let stride = OCCLUDER_STRIDE.min(side.max(2) - 1);
         let nodes: Vec<usize> = (0..side).step_by(stride).collect();
+        let n = nodes.len();
+        let at: Vec<Option<super::Look>> = (0..n * n)
+            .into_par_iter()
+            .map(|q| look(nodes[q / n] * side + nodes[q % n]))
+            .collect();
         let (mut lo, mut hi) = (
             Point2::new(Real::INFINITY, Real::INFINITY),
             Point2::new(Real::NEG_INFINITY, Real::NEG_INFINITY),
         );
-        for &r in &nodes {
-            for &c in &nodes {
-                if let Some(look) = &at[r * side + c] {
-                    lo = lo.inf(&look.pixel);
-                    hi = hi.sup(&look.pixel);
-                }
-            }
+        for look in at.iter().flatten() {
+            lo = lo.inf(&look.pixel);
+            hi = hi.sup(&look.pixel);
         }
         if lo.x > hi.x {
             return None;
@@ -413,21 +422,18 @@ impl DepthBuffer {
             ((hi.x - lo.x) / cell).ceil() as usize + 1,
             ((hi.y - lo.y) / cell).ceil() as usize + 1,
         );
-        let n = nodes.len();
         let mut pixels = Vec::with_capacity(n * n);
         let mut keys = Vec::with_capacity(n * n);
-        for &r in &nodes {
-            for &c in &nodes {
-                match at[r * side + c] {
-                    Some(look) => {
-                        let p = look.pixel;
-                        pixels.push([(p.x - lo.x) / cell, (p.y - lo.y) / cell]);
-                        keys.push(look.key);
-                    }
-                    None => {
-                        pixels.push([Real::NAN, Real::NAN]);
-                        keys.push(Real::NEG_INFINITY);
-                    }
+        for look in &at {
+            match look {
+                Some(look) => {
+                    let p = look.pixel;
+                    pixels.push([(p.x - lo.x) / cell, (p.y - lo.y) / cell]);
+                    keys.push(look.key);
+                }
+                None => {
+                    pixels.push([Real::NAN, Real::NAN]);
+                    keys.push(Real::NEG_INFINITY);
                 }
             }
         }
@@ -538,15 +544,14 @@ fn photo_view(
     let n = texels.side * texels.side;
     let camera = &photo.camera;
     let (w, h) = (photo.image.width(), photo.image.height());
-    let looks: Vec<Option<super::Look>> = (0..n)
-        .into_par_iter()
-        .map(|k| {
-            texels.inside[k]
-                .then(|| camera.look(&positions[k], &normals[k]))
-                .flatten()
-        })
-        .collect();
-    let buffer = DepthBuffer::new(&looks, texels, (w, h));
+    // Each texel's look, formed where it is needed (the depth buffer's nodes, then every
+    // texel once) rather than held for the whole atlas.
+    let look = |k: usize| {
+        texels.inside[k]
+            .then(|| camera.look(&positions[k], &normals[k]))
+            .flatten()
+    };
+    let buffer = DepthBuffer::new(look, texels, (w, h));
     let margin = 0.02 * Real::from(w.min(h));
     let mut weights = vec![0.0f32; n];
     let mut colours = vec![[0.0f32; 3]; n];
@@ -555,7 +560,7 @@ fn photo_view(
         .zip(colours.par_iter_mut())
         .enumerate()
         .for_each(|(k, (weight, colour))| {
-            let (Some(look), Some(buffer)) = (looks[k], &buffer) else {
+            let (Some(buffer), Some(look)) = (&buffer, look(k)) else {
                 return;
             };
             let (p, key, cos, resolution) = (look.pixel, look.key, look.cos, look.resolution);
@@ -988,9 +993,11 @@ pub fn bake_texture(
         .map(|s| matches!(s, TexelSource::Seen | TexelSource::Mirrored))
         .collect();
     push_pull(&mut colours, &known, side);
-    let atlas = RgbImage::from_fn(options.size, options.size, |x, y| {
-        Rgb(colours[y as usize * side + x as usize].map(to_srgb))
-    });
+    let mut atlas = RgbImage::new(options.size, options.size);
+    atlas
+        .par_chunks_mut(3)
+        .zip(&colours)
+        .for_each(|(texel, colour)| texel.copy_from_slice(&colour.map(to_srgb)));
     Ok(FaceTexture {
         atlas,
         sources,

@@ -20,7 +20,8 @@ pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
 pub use photoreal::{
-    Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, linear_to_srgb, render_photo, srgb_to_linear,
+    Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, linear_to_srgb, linear_to_srgb8, render_photo,
+    srgb_to_linear,
 };
 pub use raster::render_heights;
 pub use text::{TextStyle, draw_text, line_height, text_width, wrap_text};

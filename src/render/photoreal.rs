@@ -194,6 +194,24 @@ pub fn srgb_to_linear(c: f32) -> f32 {
     }
 }
 
+/// Linear light as an 8-bit sRGB value, `round(255 · linear_to_srgb(c))`, without a power:
+/// a binary search of the 255 linear values at which the rounded value steps up (NaN gives
+/// 0). Textures and renders encode millions of values; this is what they call.
+pub fn linear_to_srgb8(c: Real) -> u8 {
+    static STEPS: std::sync::OnceLock<[Real; 255]> = std::sync::OnceLock::new();
+    let steps = STEPS.get_or_init(|| {
+        std::array::from_fn(|v| {
+            let s = (v as Real + 0.5) / 255.0;
+            if s <= 0.04045 {
+                s / 12.92
+            } else {
+                ((s + 0.055) / 1.055).powf(2.4)
+            }
+        })
+    });
+    steps.partition_point(|&t| t <= c) as u8
+}
+
 /// Linear light (clamped to 0–1) encoded as an sRGB value (0–1).
 pub fn linear_to_srgb(c: Real) -> Real {
     let c = c.clamp(0.0, 1.0);
@@ -514,11 +532,14 @@ pub fn render_photo(
     let mut noise = SplitMix(look.seed);
     let mut image = RgbImage::new(w as u32, h as u32);
     for (k, p) in small.iter().enumerate() {
-        let mut c = [0u8; 3];
-        for ch in 0..3 {
-            let v = linear_to_srgb(p[ch]) + look.noise * noise.gaussian();
-            c[ch] = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-        }
+        let c = if look.noise == 0.0 {
+            p.map(linear_to_srgb8)
+        } else {
+            p.map(|v| {
+                let v = linear_to_srgb(v) + look.noise * noise.gaussian();
+                (v.clamp(0.0, 1.0) * 255.0).round() as u8
+            })
+        };
         image.put_pixel((k % w) as u32, (k / w) as u32, Rgb(c));
     }
     Ok(image)
@@ -552,4 +573,26 @@ fn gaussian_blur(values: &[[Real; 3]], width: usize, height: usize, sigma: Real)
         out
     };
     pass(&pass(values, true), false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The table's 8-bit encoding against the power law's, over a fine sweep of linear values
+    /// beyond both ends: equal everywhere but within rounding of a step (none were there).
+    #[test]
+    fn srgb8_matches_the_power_law() {
+        for i in -1000..=121_000 {
+            let c = i as Real / 100_000.0;
+            let exact = linear_to_srgb(c) * 255.0;
+            let near_step = (exact - exact.floor() - 0.5).abs() < 1e-9;
+            if !near_step {
+                assert_eq!(linear_to_srgb8(c), exact.round() as u8, "linear {c}");
+            }
+        }
+        assert_eq!(linear_to_srgb8(Real::NAN), 0);
+        assert_eq!(linear_to_srgb8(Real::INFINITY), 255);
+        assert_eq!(linear_to_srgb8(-1.0), 0);
+    }
 }
