@@ -1445,10 +1445,19 @@ impl Level<'_> {
             .iter()
             .map(|v| {
                 let r = v.value - mean;
-                (v.weight / total, scale * v.weight * cauchy(r, c), r, v.d_point - mean_point)
+                (
+                    v.weight / total,
+                    scale * v.weight * cauchy(r, c),
+                    r,
+                    v.d_point - mean_point,
+                )
             })
             .collect();
-        let (mut a, mut b, mut u) = (nalgebra::Matrix3::<Real>::zeros(), Vector3::zeros(), Vector3::zeros());
+        let (mut a, mut b, mut u) = (
+            nalgebra::Matrix3::<Real>::zeros(),
+            Vector3::zeros(),
+            Vector3::zeros(),
+        );
         let (mut weight_sum, mut residual_sum) = (0.0, 0.0);
         for &(_, rho, r, q) in &views {
             a += q * q.transpose() * rho;
@@ -1979,7 +1988,15 @@ mod tests {
         let (scale, c) = (0.7, 1.1);
         let mut h = DMatrix::zeros(n, n);
         let mut g = DVector::zeros(n);
-        Level::add_sample(&modes, field, &basis, &seen, (total, mean), (scale, c), (&mut h, &mut g));
+        Level::add_sample(
+            &modes,
+            field,
+            &basis,
+            &seen,
+            (total, mean),
+            (scale, c),
+            (&mut h, &mut g),
+        );
 
         let mut expected_h = DMatrix::<Real>::zeros(n, n);
         let mut expected_g = DVector::<Real>::zeros(n);
@@ -2045,7 +2062,10 @@ mod tests {
                     }
                     let expected = sum / (total * total);
                     let got = Real::from(blurred[r as usize * width + c as usize]);
-                    assert!((got - expected).abs() < 1e-5, "{width}x{height} at ({c}, {r}): {got} against {expected}");
+                    assert!(
+                        (got - expected).abs() < 1e-5,
+                        "{width}x{height} at ({c}, {r}): {got} against {expected}"
+                    );
                 }
             }
         }
