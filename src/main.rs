@@ -1258,6 +1258,9 @@ fn reconstruct_command(
             }
         );
     }
+    // The landmark model (67 MB in its compact form) is done with: let it go before the
+    // stages whose buffers make the run's peak (RASL, the texture).
+    drop(predictor);
     let mut options = options;
     options.expression_of = output.expression_photo(&inputs)?;
     let result = reconstruct(&inputs, &reference, &options, progress)?;
