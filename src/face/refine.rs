@@ -1398,10 +1398,9 @@ impl Level<'_> {
         out
     }
 
-    /// The Gauss-Newton normal equations `(H, g)` at `state` (cost's half-Hessian and half-
-    /// gradient).
     /// Adds one sample's consistency residuals to the normal equations' upper triangle `h`
-    /// and gradient `g`. `loss` is `(β / σ², c)`: the residuals' scale and the Cauchy loss's
+    /// and gradient `g`. `(total, mean)` are the seeing views' summed weight and weighted mean
+    /// ([`agreement`]); `(scale, c)` the residuals' scale `β / σ²` and the Cauchy loss's
     /// parameter.
     ///
     /// View `a`'s residual is `rootₐ (Nₐ − μ)`, `rootₐ² = ρₐ` its weight (visibility, scale and
@@ -1532,6 +1531,8 @@ impl Level<'_> {
         }
     }
 
+    /// The Gauss-Newton normal equations `(H, g)` at `state` (cost's half-Hessian and half-
+    /// gradient).
     fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>) {
         let normalisers = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);

@@ -384,8 +384,8 @@ struct DepthBuffer {
 
 impl DepthBuffer {
     /// Rasterises the quads of the texel grid every [`OCCLUDER_STRIDE`] texels whose corners
-    /// lie in the clip region, as the camera sees them (`at` gives each texel's image point
-    /// and depth key).
+    /// lie in the clip region, as the camera sees them (`look` gives a texel's image point
+    /// and depth key, `None` where the camera does not see it; it is asked at the nodes only).
     fn new(
         look: impl Fn(usize) -> Option<super::Look> + Sync,
         texels: &Texels,
