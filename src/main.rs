@@ -1761,7 +1761,7 @@ fn find_landmarks(
     name: &str,
 ) -> std::result::Result<(PhotoPoints, splineface::detect::LandmarkedFace, [f64; 2]), String> {
     let start = std::time::Instant::now();
-    let faces = splineface::detect::detect_faces(&image.to_luma8());
+    let faces = splineface::detect::detect_subject_faces(&image.to_luma8());
     let (face, note) = splineface::detect::subject_face(&faces).map_err(|e| e.to_string())?;
     let detection = start.elapsed().as_secs_f64();
     let start = std::time::Instant::now();

@@ -62,9 +62,9 @@ pub const MIN_SIDE: u32 = 40;
 /// the time goes, are searched at a fraction of the cost.
 pub const DETECTION_SIDE: u32 = 1024;
 
-/// Detects faces in a grey image, largest first; faces under 20 pixels (at the detection's
-/// scale, [`DETECTION_SIDE`]) are not searched for. Images with a side under [`MIN_SIDE`] give
-/// no faces.
+/// Detects faces in a grey image, largest first; faces under the detector's 40-pixel window
+/// (at the detection's scale, [`DETECTION_SIDE`]) are not searched for. Images with a side
+/// under [`MIN_SIDE`] give no faces.
 pub fn detect_faces(image: &image::GrayImage) -> Vec<Detection> {
     detect_faces_within(image, DETECTION_SIDE)
 }
@@ -102,10 +102,74 @@ pub fn detect_faces_within(image: &image::GrayImage, side: u32) -> Vec<Detection
     search(image)
 }
 
+/// The longest side of the first, coarse search for a photo's subject ([`detect_subject_faces`]).
+///
+/// Chosen from the search's cost and reach: SeetaFace's work grows with the pixels searched,
+/// and its window is [`MIN_SIDE`] pixels at the searched scale, so a copy with a longest side
+/// of 400 finds faces of a tenth of the photo's longest side and more. A portrait's face is
+/// larger than that (the photo-realistic evaluation's are 22–45% of an 800-pixel width; dlib's
+/// fixture portraits about a third); where it is not, the fallback searches at
+/// [`DETECTION_SIDE`]. On an 800 × 1000 photo the coarse search costs about a sixth of the full
+/// one.
+pub const SUBJECT_SEARCH_SIDE: u32 = 400;
+
+/// How much further than needed the coarse search must have reached before its answer stands
+/// ([`detect_subject_faces`]): a face the detector only just finds at its smallest window may
+/// be missed, so the faces that could make the subject ambiguous must be at least this factor
+/// above the window.
+pub const SUBJECT_SEARCH_MARGIN: f64 = 1.25;
+
+/// The least score of the largest face in the coarse search for its answer to stand
+/// ([`detect_subject_faces`]).
+///
+/// Chosen from what the coarse search found where the full one did not: on dlib's fixture and
+/// the photo-realistic evaluation's 168 rendered photos (7 subjects, yaw up to ±56°) it found
+/// two faces the full search rejects, scored 3.1 and 3.3 (one on `dogs.jpg`), while the subjects
+/// both searches found scored 2.6–44 in the coarse one (4 of 160 under 5). Below this the photo
+/// is searched in full, so those decisions stay the full search's.
+pub const SUBJECT_SEARCH_MIN_SCORE: f64 = 5.0;
+
+/// Detects the faces that decide a photo's subject ([`subject_face`]), largest first, by a
+/// coarse search first.
+///
+/// The subject is the largest face, and only faces of at least [`AMBIGUOUS_FACE_AREA`] of its
+/// area (`√0.5 ≈ 0.71` of its width) can make it ambiguous. So the photo is first searched on a
+/// copy scaled to [`SUBJECT_SEARCH_SIDE`] pixels along its longest side, where the smallest face
+/// found is [`MIN_SIDE`] pixels at that scale. When the largest face found there is so large
+/// that every face that could rival it is at least [`SUBJECT_SEARCH_MARGIN`] times that
+/// smallest size, and the detector is sure of it (a score of at least
+/// [`SUBJECT_SEARCH_MIN_SCORE`]), the coarse answer stands; otherwise (no face, a small one or
+/// an unsure one) the photo is searched as [`detect_faces`] does. Clearly smaller faces may be missing from the answer
+/// (they are ignored by [`subject_face`] anyway, but its note about them is then absent).
+pub fn detect_subject_faces(image: &image::GrayImage) -> Vec<Detection> {
+    let long = image.width().max(image.height());
+    if long <= SUBJECT_SEARCH_SIDE {
+        return detect_faces(image);
+    }
+    let coarse = detect_faces_within(image, SUBJECT_SEARCH_SIDE);
+    if coarse.first().is_some_and(|largest| {
+        largest.score >= SUBJECT_SEARCH_MIN_SCORE && coarse_search_suffices(largest, long)
+    }) {
+        return coarse;
+    }
+    detect_faces(image)
+}
+
+/// Whether every face that could rival `largest` (found by the coarse search of an image with
+/// longest side `long`) is surely within that search's reach ([`detect_subject_faces`]).
+fn coarse_search_suffices(largest: &Detection, long: u32) -> bool {
+    let b = largest.bbox;
+    let width = ((b.right - b.left + 1).min(b.bottom - b.top + 1)) as f64;
+    let smallest_found = f64::from(MIN_SIDE) * f64::from(long) / f64::from(SUBJECT_SEARCH_SIDE);
+    AMBIGUOUS_FACE_AREA.sqrt() * width >= SUBJECT_SEARCH_MARGIN * smallest_found
+}
+
 /// SeetaFace's search of the whole image, largest face first.
 fn search(image: &image::GrayImage) -> Vec<Detection> {
     let (width, height) = image.dimensions();
     let mut detector = rustface::create_detector_with_model(model().clone());
+    // rustface 0.1.7 starts its pyramid at the image's own scale whatever this is (its
+    // `set_max_scale` call is commented out), so the smallest face found is the 40-pixel window.
     detector.set_min_face_size(20);
     detector.set_score_thresh(2.0);
     detector.set_pyramid_scale_factor(0.8);
@@ -293,53 +357,73 @@ pub fn landmark_face(
     ];
     let start = landmark_box(&face);
     let box_width = (start.right - start.left) as crate::Real;
+    // The answer on side `s`, in the photo's frame.
+    let on_side = |points: Vec<nalgebra::Point2<crate::Real>>, s: usize| {
+        if s == 0 {
+            points
+        } else {
+            mirrored_points(&points, width)
+        }
+    };
+    let on_image = |b: FaceBox, s: usize| if s == 0 { b } else { mirrored_box(b, width) };
+    // Every start: each shift, on the photo and on its mirror image, with the other side to
+    // check it on. The model runs each round's faces together (`predict_all`).
+    let starts: Vec<(usize, usize, FaceBox)> = BOX_SHIFTS
+        .iter()
+        .flat_map(|shift| {
+            let dx = (shift * box_width).round() as i64;
+            let shifted = FaceBox {
+                left: start.left + dx,
+                right: start.right + dx,
+                ..start
+            };
+            [(0, 1), (1, 0)].map(|(side, other)| (side, other, on_image(shifted, side)))
+        })
+        .collect();
+    let answers: Vec<_> = model
+        .predict_all(
+            &starts
+                .iter()
+                .map(|&(side, _, b)| (&sides[side], b))
+                .collect::<Vec<_>>(),
+        )
+        .into_iter()
+        .zip(&starts)
+        .map(|(points, &(side, _, _))| on_side(points, side))
+        .collect();
+    // The other side's answer from the box each answer implies.
+    let implied: Vec<Option<FaceBox>> = answers
+        .iter()
+        .zip(&starts)
+        .map(|(answer, &(_, other, _))| model.box_for(answer).map(|b| on_image(b, other)))
+        .collect();
+    let checks = model.predict_all(
+        &implied
+            .iter()
+            .zip(&starts)
+            .filter_map(|(b, &(_, other, _))| b.map(|b| (&sides[other], b)))
+            .collect::<Vec<_>>(),
+    );
+    let mut checks = checks.into_iter();
     let mut best: Option<(crate::Real, Vec<nalgebra::Point2<crate::Real>>)> = None;
-    for shift in BOX_SHIFTS {
-        let dx = (shift * box_width).round() as i64;
-        let shifted = FaceBox {
-            left: start.left + dx,
-            right: start.right + dx,
-            ..start
-        };
-        for (side, other) in [(0, 1), (1, 0)] {
-            // The answer from this side, in the photo's frame.
-            let on_side = |points: Vec<nalgebra::Point2<crate::Real>>, s: usize| {
-                if s == 0 {
-                    points
-                } else {
-                    mirrored_points(&points, width)
-                }
-            };
-            let boxed = if side == 0 {
-                shifted
-            } else {
-                mirrored_box(shifted, width)
-            };
-            let answer = on_side(model.predict(&sides[side], boxed), side);
-            // The other side's answer from the box this one implies.
-            let Some(implied) = model.box_for(&answer) else {
-                continue;
-            };
-            let implied = if other == 0 {
-                implied
-            } else {
-                mirrored_box(implied, width)
-            };
-            let check = on_side(model.predict(&sides[other], implied), other);
-            let eyes = (answer[45] - answer[36]).norm().max(1.0);
-            let disagreement = (17..68)
-                .map(|k| (answer[k] - check[k]).norm())
-                .sum::<crate::Real>()
-                / 51.0
-                / eyes;
-            if best.as_ref().is_none_or(|(d, _)| disagreement < *d) {
-                let mean = answer
-                    .iter()
-                    .zip(&check)
-                    .map(|(a, b)| nalgebra::center(a, b))
-                    .collect();
-                best = Some((disagreement, mean));
-            }
+    for ((answer, implied), &(_, other, _)) in answers.iter().zip(&implied).zip(&starts) {
+        if implied.is_none() {
+            continue;
+        }
+        let check = on_side(checks.next().expect("a check for every implied box"), other);
+        let eyes = (answer[45] - answer[36]).norm().max(1.0);
+        let disagreement = (17..68)
+            .map(|k| (answer[k] - check[k]).norm())
+            .sum::<crate::Real>()
+            / 51.0
+            / eyes;
+        if best.as_ref().is_none_or(|(d, _)| disagreement < *d) {
+            let mean = answer
+                .iter()
+                .zip(&check)
+                .map(|(a, b)| nalgebra::center(a, b))
+                .collect();
+            best = Some((disagreement, mean));
         }
     }
     let (disagreement, ibug) = best.ok_or("the landmark model gave no usable points")?;
@@ -351,8 +435,8 @@ pub fn landmark_face(
     })
 }
 
-/// Detects the faces in a photo and landmarks the subject's ([`subject_face`],
-/// [`landmark_face`]).
+/// Detects the faces in a photo and landmarks the subject's ([`detect_subject_faces`],
+/// [`subject_face`], [`landmark_face`]).
 ///
 /// # Errors
 /// A message when no subject face is found ([`SubjectProblem`]) or the model does not give 68
@@ -361,7 +445,50 @@ pub fn landmark_subject(
     model: &crate::landmarker::ShapePredictor,
     image: &image::DynamicImage,
 ) -> Result<LandmarkedFace, String> {
-    let (face, note) = subject_face(&detect_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
+    let (face, note) = subject_face(&detect_subject_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
     let found = landmark_face(model, &image.to_rgb8(), face)?;
     Ok(LandmarkedFace { note, ..found })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn square(side: i64) -> Detection {
+        Detection {
+            bbox: FaceBox::from_size(0, 0, side, side),
+            score: 5.0,
+        }
+    }
+
+    /// The coarse search's answer stands exactly when a rival of half the largest face's area
+    /// is at least the margin above the smallest face the coarse search finds.
+    #[test]
+    fn the_coarse_search_suffices_above_its_reach() {
+        // An image of longest side 1000 searched at 400: the smallest face found is 100 px, so
+        // rivals need 125 px, and the largest face 125 / √0.5 = 176.8 px.
+        let long = 1000;
+        let needed = SUBJECT_SEARCH_MARGIN * f64::from(MIN_SIDE) * f64::from(long)
+            / f64::from(SUBJECT_SEARCH_SIDE)
+            / AMBIGUOUS_FACE_AREA.sqrt();
+        assert!((needed - 176.78).abs() < 0.01, "{needed}");
+        assert!(!coarse_search_suffices(&square(176), long));
+        assert!(coarse_search_suffices(&square(177), long));
+        // A box as tall as needed but too narrow does not suffice.
+        let narrow = Detection {
+            bbox: FaceBox::from_size(0, 0, 100, 300),
+            score: 5.0,
+        };
+        assert!(!coarse_search_suffices(&narrow, long));
+        // Twice the photo, twice the face needed.
+        assert!(!coarse_search_suffices(&square(300), 2 * long));
+        assert!(coarse_search_suffices(&square(354), 2 * long));
+    }
+
+    /// Images no larger than the coarse search are searched once, as `detect_faces` does.
+    #[test]
+    fn small_images_are_searched_as_a_whole() {
+        let image = image::GrayImage::from_fn(300, 200, |x, y| image::Luma([((x * 7 + y * 3) % 256) as u8]));
+        assert_eq!(detect_subject_faces(&image), detect_faces(&image));
+    }
 }

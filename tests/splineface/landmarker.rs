@@ -86,6 +86,80 @@ fn a_hand_made_model_runs_as_specified() {
     }
 }
 
+/// Faces landmarked together are landmarked as alone, bit for bit: the hand-made model on two
+/// images that send its tree opposite ways, and dlib's model (when `../shared` is there, as in
+/// the ignored fixture test) on several faces and boxes.
+#[test]
+fn faces_landmarked_together_are_landmarked_as_alone() {
+    let model = ShapePredictor::parse(&tiny_model()).unwrap();
+    let images: Vec<Intensity> = [true, false]
+        .map(|left_bright| {
+            Intensity::from_rgb(&image::RgbImage::from_fn(64, 64, |x, _| {
+                let bright = if x < 30 { left_bright } else { !left_bright };
+                image::Rgb(if bright { [200, 100, 0] } else { [10, 20, 30] })
+            }))
+        })
+        .into();
+    let faces = [
+        (&images[0], FaceBox::from_size(10, 20, 41, 41)),
+        (&images[1], FaceBox::from_size(10, 20, 41, 41)),
+        (&images[0], FaceBox::from_size(-5, 3, 30, 50)),
+    ];
+    let together = model.predict_all(&faces);
+    assert_eq!(together.len(), 3);
+    assert_ne!(
+        together[0], together[1],
+        "the two images send the tree opposite ways"
+    );
+    for (points, &(image, face)) in together.iter().zip(&faces) {
+        assert_eq!(points, &model.predict(image, face));
+    }
+    assert!(model.predict_all(&[]).is_empty());
+}
+
+/// dlib's model on the fixture's faces, together and alone.
+#[test]
+#[ignore = "needs ../shared (the model and dlib's fixture)"]
+fn dlibs_model_landmarks_faces_together_as_alone() {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
+    let dir = shared.join("data/dlib-faces");
+    let text = std::fs::read_to_string(dir.join("testing_with_face_landmarks.xml")).unwrap();
+    let mut images = std::collections::BTreeMap::new();
+    let faces: Vec<(String, FaceBox)> = fixture(&text)
+        .into_iter()
+        .map(|(file, face, _)| (file, face))
+        .collect();
+    for (file, _) in &faces {
+        images
+            .entry(file.clone())
+            .or_insert_with(|| Intensity::from_rgb(&image::open(dir.join(file)).unwrap().to_rgb8()));
+    }
+    // Each face from its box and from the box shifted by a fifth of its width.
+    let jobs: Vec<(&Intensity, FaceBox)> = faces
+        .iter()
+        .flat_map(|(file, b)| {
+            let dx = (b.right - b.left) / 5;
+            [
+                (&images[file], *b),
+                (
+                    &images[file],
+                    FaceBox {
+                        left: b.left + dx,
+                        right: b.right + dx,
+                        ..*b
+                    },
+                ),
+            ]
+        })
+        .collect();
+    assert!(jobs.len() >= 10, "{} faces", jobs.len());
+    let together = model.predict_all(&jobs);
+    for (points, &(image, face)) in together.iter().zip(&jobs) {
+        assert_eq!(points, &model.predict(image, face));
+    }
+}
+
 #[test]
 fn damaged_models_are_errors() {
     let good = tiny_model();
@@ -386,6 +460,68 @@ fn detection_and_landmarks_on_the_fixture() {
         mean(&errors.1)
     );
     assert!(bald.len() >= 5);
+}
+
+/// The coarse-first subject search decides every photo of dlib's fixture and of `lps-head` as
+/// the full search does: the same subject (boxes overlapping by more than half) or the same
+/// refusal (no face, or two faces of about one size).
+#[test]
+#[ignore = "needs ../shared (dlib's fixture and lps-head's photos)"]
+fn the_coarse_subject_search_decides_as_the_full_search() {
+    use splineface::detect::{detect_faces, detect_subject_faces, subject_face};
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data");
+    let mut photos = Vec::new();
+    for dir in ["dlib-faces", "lps-head/photos-8", "lps-head/photos-3"] {
+        for entry in std::fs::read_dir(shared.join(dir)).unwrap() {
+            let path = entry.unwrap().path();
+            if matches!(path.extension().and_then(|e| e.to_str()), Some("jpg" | "png")) {
+                photos.push(path);
+            }
+        }
+    }
+    photos.sort();
+    assert!(photos.len() >= 20, "{} photos", photos.len());
+    let (mut full_time, mut coarse_time) = (std::time::Duration::ZERO, std::time::Duration::ZERO);
+    let mut subjects = 0;
+    for path in &photos {
+        let grey = image::open(path).unwrap().to_luma8();
+        let t = std::time::Instant::now();
+        let full = subject_face(&detect_faces(&grey));
+        full_time += t.elapsed();
+        let t = std::time::Instant::now();
+        let coarse = subject_face(&detect_subject_faces(&grey));
+        coarse_time += t.elapsed();
+        match (&full, &coarse) {
+            (Ok((a, _)), Ok((b, _))) => {
+                subjects += 1;
+                let overlap = iou(&a.bbox, &b.bbox);
+                assert!(
+                    overlap > 0.5,
+                    "{}: boxes {:?} and {:?} overlap {overlap:.2}",
+                    path.display(),
+                    a.bbox,
+                    b.bbox
+                );
+            }
+            (Err(a), Err(b)) => assert_eq!(
+                std::mem::discriminant(a),
+                std::mem::discriminant(b),
+                "{}: {a} against {b}",
+                path.display()
+            ),
+            _ => panic!(
+                "{}: full search {full:?}, coarse-first {coarse:?}",
+                path.display()
+            ),
+        }
+    }
+    println!(
+        "{} photos, {subjects} with a subject; full search {:.0} ms, coarse-first {:.0} ms",
+        photos.len(),
+        full_time.as_secs_f64() * 1e3,
+        coarse_time.as_secs_f64() * 1e3
+    );
+    assert!(subjects >= 12, "{subjects} photos with a subject");
 }
 
 /// The subject among a photo's faces: the only one, the largest when the others are clearly
