@@ -1,7 +1,9 @@
 //! The photo stages' speed, each against the way it was done before, in one run: loading
 //! dlib's landmark model (its `.dat` parsed against the compact form copied into place),
-//! detection (at full size against a copy scaled to `DETECTION_SIDE`), and the photos'
-//! decoding, detection and landmarks (one after another against in parallel).
+//! detection (at full size, on a copy scaled to `DETECTION_SIDE`, and the subject's
+//! coarse-first search), landmarks (a photo's starts one at a time against together through
+//! the trees), and the photos' decoding, detection and landmarks (one after another with
+//! full-size detection against in parallel with the coarse-first search).
 //!
 //! Run: `cargo run --release --example photo_bench -- [--model DAT] [--photos DIR]`
 //! (defaults: `../shared/models/shape_predictor_68_face_landmarks.dat` and
@@ -12,8 +14,19 @@ use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use rayon::prelude::*;
-use splineface::detect::{DETECTION_SIDE, detect_faces_within, landmark_face, subject_face};
+use splineface::detect::{
+    BOX_SHIFTS, DETECTION_SIDE, detect_faces_within, detect_subject_faces, landmark_box, landmark_face,
+    subject_face,
+};
 use splineface::landmarker::{ModelSource, ShapePredictor};
+
+/// The intersection over union of two boxes.
+fn iou(a: splineface::landmarker::FaceBox, b: splineface::landmarker::FaceBox) -> f64 {
+    let w = (a.right.min(b.right) - a.left.max(b.left) + 1).max(0);
+    let h = (a.bottom.min(b.bottom) - a.top.max(b.top) + 1).max(0);
+    let area = |f: splineface::landmarker::FaceBox| (f.right - f.left + 1) * (f.bottom - f.top + 1);
+    (w * h) as f64 / (area(a) + area(b) - w * h) as f64
+}
 
 /// The best of `runs` timings of `f`, seconds, and its last result.
 fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
@@ -28,10 +41,15 @@ fn best<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
     (best, last.expect("at least one run"))
 }
 
-/// Decodes, detects (searching within `side`) and landmarks one photo: its 68 points.
-fn landmark(path: &Path, model: &ShapePredictor, side: u32) -> Option<Vec<nalgebra::Point2<f64>>> {
+/// Decodes, detects (searching within `side`, or by the coarse-first subject search when
+/// `None`) and landmarks one photo: its 68 points.
+fn landmark(path: &Path, model: &ShapePredictor, side: Option<u32>) -> Option<Vec<nalgebra::Point2<f64>>> {
     let image = splineface::align::decode_photo(path).ok()?;
-    let faces = detect_faces_within(&image.to_luma8(), side);
+    let grey = image.to_luma8();
+    let faces = match side {
+        Some(side) => detect_faces_within(&grey, side),
+        None => detect_subject_faces(&grey),
+    };
     let (face, _) = subject_face(&faces).ok()?;
     landmark_face(model, &image.to_rgb8(), face).ok().map(|f| f.ibug)
 }
@@ -86,53 +104,85 @@ fn main() -> Result<()> {
 
     // Detection, per photo.
     println!("detection ({} photos, {})", photos.len(), photo_dir.display());
-    let (mut full_total, mut small_total) = (0.0, 0.0);
+    let (mut full_total, mut small_total, mut coarse_total) = (0.0, 0.0, 0.0);
+    let (mut one_total, mut together_total) = (0.0, 0.0);
     for path in &photos {
-        let grey = splineface::align::decode_photo(path)?.to_luma8();
+        let image = splineface::align::decode_photo(path)?;
+        let grey = image.to_luma8();
         let (full_s, full) = best(2, || detect_faces_within(&grey, u32::MAX));
         let (small_s, small) = best(2, || detect_faces_within(&grey, DETECTION_SIDE));
+        let (coarse_s, coarse) = best(2, || detect_subject_faces(&grey));
         full_total += full_s;
         small_total += small_s;
-        let overlap = match (full.first(), small.first()) {
-            (Some(a), Some(b)) => {
-                let (a, b) = (a.bbox, b.bbox);
-                let w = (a.right.min(b.right) - a.left.max(b.left) + 1).max(0);
-                let h = (a.bottom.min(b.bottom) - a.top.max(b.top) + 1).max(0);
-                let area =
-                    |f: splineface::landmarker::FaceBox| (f.right - f.left + 1) * (f.bottom - f.top + 1);
-                format!("{:.3}", (w * h) as f64 / (area(a) + area(b) - w * h) as f64)
-            }
+        coarse_total += coarse_s;
+        let overlap = |other: &[splineface::detect::Detection]| match (full.first(), other.first()) {
+            (Some(a), Some(b)) => format!("{:.3}", iou(a.bbox, b.bbox)),
             _ => "-".to_owned(),
         };
         println!(
-            "  {:<14} {}×{}  full {:6.1} ms ({} faces), within {DETECTION_SIDE} px {:6.1} ms ({} faces), largest boxes' IoU {overlap}",
+            "  {:<14} {}×{}  full {:6.1} ms ({} faces), within {DETECTION_SIDE} px {:6.1} ms (IoU {}), coarse-first {:6.1} ms (IoU {})",
             path.file_name().unwrap_or_default().to_string_lossy(),
             grey.width(),
             grey.height(),
             1e3 * full_s,
             full.len(),
             1e3 * small_s,
-            small.len(),
+            overlap(&small),
+            1e3 * coarse_s,
+            overlap(&coarse),
         );
+        // The landmarks' starts on this photo: the shifted boxes, one at a time and together.
+        if let Some(face) = full.first() {
+            let start = landmark_box(face);
+            let intensity = splineface::landmarker::Intensity::from_rgb(&image.to_rgb8());
+            let boxes: Vec<_> = BOX_SHIFTS
+                .iter()
+                .map(|s| {
+                    let dx = (s * (start.right - start.left) as f64).round() as i64;
+                    splineface::landmarker::FaceBox {
+                        left: start.left + dx,
+                        right: start.right + dx,
+                        ..start
+                    }
+                })
+                .collect();
+            let jobs: Vec<_> = boxes.iter().map(|&b| (&intensity, b)).collect();
+            let (one_s, one) = best(3, || {
+                jobs.iter().map(|&(i, b)| model.predict(i, b)).collect::<Vec<_>>()
+            });
+            let (together_s, together) = best(3, || model.predict_all(&jobs));
+            assert!(one == together, "together as alone");
+            one_total += one_s;
+            together_total += together_s;
+        }
     }
     println!(
-        "  total                  {:8.1} ms full size, {:.1} ms scaled ({:.1}x faster)",
+        "  total                  {:8.1} ms full size, {:.1} ms within {DETECTION_SIDE} px ({:.1}x faster), {:.1} ms coarse-first ({:.1}x faster)",
         1e3 * full_total,
         1e3 * small_total,
-        full_total / small_total
+        full_total / small_total,
+        1e3 * coarse_total,
+        full_total / coarse_total
+    );
+    println!(
+        "landmarks: {} starts a photo, one at a time {:.1} ms, together {:.1} ms ({:.1}x faster; the same points)",
+        BOX_SHIFTS.len(),
+        1e3 * one_total,
+        1e3 * together_total,
+        one_total / together_total
     );
 
     // The photos' stage: decoding, detection and landmarks.
     let (before_s, before) = best(2, || {
         photos
             .iter()
-            .map(|p| landmark(p, &model, u32::MAX))
+            .map(|p| landmark(p, &model, Some(u32::MAX)))
             .collect::<Vec<_>>()
     });
     let (after_s, after) = best(2, || {
         photos
             .par_iter()
-            .map(|p| landmark(p, &model, DETECTION_SIDE))
+            .map(|p| landmark(p, &model, None))
             .collect::<Vec<_>>()
     });
     let mut shifts = Vec::new();
@@ -147,13 +197,13 @@ fn main() -> Result<()> {
         1e3 * before_s
     );
     println!(
-        "  in parallel ({} threads), scaled detection {:8.1} ms   ({:.1}x faster)",
+        "  in parallel ({} threads), coarse-first detection {:8.1} ms   ({:.1}x faster)",
         rayon::current_num_threads(),
         1e3 * after_s,
         before_s / after_s
     );
     println!(
-        "  landmarks moved by the scaled detection's boxes: mean {:.2} px, largest photo mean {:.2} px ({} of {} photos landmarked both ways)",
+        "  landmarks moved by the coarse-first detection's boxes: mean {:.2} px, largest photo mean {:.2} px ({} of {} photos landmarked both ways)",
         shifts.iter().sum::<f64>() / shifts.len().max(1) as f64,
         shifts.iter().copied().fold(0.0, f64::max),
         shifts.len(),
