@@ -117,13 +117,18 @@ fn faces_landmarked_together_are_landmarked_as_alone() {
     assert!(model.predict_all(&[]).is_empty());
 }
 
+/// dlib's 68-point model and the folder of its fixture, from `../shared`.
+fn dlib_model_and_fixture() -> (ShapePredictor, std::path::PathBuf) {
+    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
+    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
+    (model, shared.join("data/dlib-faces"))
+}
+
 /// dlib's model on the fixture's faces, together and alone.
 #[test]
 #[ignore = "needs ../shared (the model and dlib's fixture)"]
 fn dlibs_model_landmarks_faces_together_as_alone() {
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
-    let dir = shared.join("data/dlib-faces");
+    let (model, dir) = dlib_model_and_fixture();
     let text = std::fs::read_to_string(dir.join("testing_with_face_landmarks.xml")).unwrap();
     let mut images = std::collections::BTreeMap::new();
     let faces: Vec<(String, FaceBox)> = fixture(&text)
@@ -396,9 +401,7 @@ fn iou(a: &FaceBox, b: &FaceBox) -> f64 {
 #[ignore = "needs ../shared (the model and dlib's fixture)"]
 fn detection_and_landmarks_on_the_fixture() {
     use splineface::detect::{BOX_CALIBRATION, detect_faces, landmark_box};
-    let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    let model = ShapePredictor::read(&shared.join("models/shape_predictor_68_face_landmarks.dat")).unwrap();
-    let dir = shared.join("data/dlib-faces");
+    let (model, dir) = dlib_model_and_fixture();
     let mut pairs = Vec::new();
     let (mut found, mut total) = (0, 0);
     let mut errors = (Vec::new(), Vec::new());
