@@ -90,7 +90,7 @@ impl FaceBox {
 }
 
 /// An 8-bit intensity image (row-major from the top).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Intensity {
     width: usize,
     height: usize,
@@ -109,6 +109,18 @@ impl Intensity {
             height: image.height() as usize,
             data,
         }
+    }
+
+    /// The mirror image (left and right swapped): the intensity of the mirrored colour image,
+    /// formed without it.
+    pub fn mirrored(&self) -> Self {
+        let mut data = self.data.clone();
+        if self.width > 0 {
+            for row in data.chunks_exact_mut(self.width) {
+                row.reverse();
+            }
+        }
+        Intensity { data, ..*self }
     }
 
     fn get(&self, x: i64, y: i64) -> u8 {

@@ -351,10 +351,9 @@ pub fn landmark_face(
         ));
     }
     let width = image.width();
-    let sides = [
-        Intensity::from_rgb(image),
-        Intensity::from_rgb(&image::imageops::flip_horizontal(image)),
-    ];
+    let photo = Intensity::from_rgb(image);
+    let mirror = photo.mirrored();
+    let sides = [photo, mirror];
     let start = landmark_box(&face);
     let box_width = (start.right - start.left) as crate::Real;
     // The answer on side `s`, in the photo's frame.

@@ -117,6 +117,24 @@ fn faces_landmarked_together_are_landmarked_as_alone() {
     assert!(model.predict_all(&[]).is_empty());
 }
 
+/// The mirrored intensity is the intensity of the mirrored photo, pixel for pixel (odd and
+/// even widths, one-pixel images).
+#[test]
+fn the_mirrored_intensity_is_the_mirrored_photos() {
+    for (w, h) in [(7, 5), (8, 3), (1, 4), (5, 1)] {
+        let image = image::RgbImage::from_fn(w, h, |x, y| {
+            image::Rgb([
+                (x * 37 + y * 11) as u8,
+                (x * 5 + y * 71) as u8,
+                (x * y * 13 + 7) as u8,
+            ])
+        });
+        let mirrored = Intensity::from_rgb(&image).mirrored();
+        let expected = Intensity::from_rgb(&image::imageops::flip_horizontal(&image));
+        assert_eq!(mirrored, expected, "{w} × {h}");
+    }
+}
+
 /// dlib's 68-point model and the folder of its fixture, from `../shared`.
 fn dlib_model_and_fixture() -> (ShapePredictor, std::path::PathBuf) {
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
