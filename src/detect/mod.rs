@@ -390,26 +390,23 @@ pub fn landmark_face(
         .zip(&starts)
         .map(|(points, &(side, _, _))| on_side(points, side))
         .collect();
-    // The other side's answer from the box each answer implies.
-    let implied: Vec<Option<FaceBox>> = answers
+    // The other side's answer from the box each answer implies (where it implies one).
+    let checked: Vec<(usize, FaceBox)> = answers
         .iter()
         .zip(&starts)
-        .map(|(answer, &(_, other, _))| model.box_for(answer).map(|b| on_image(b, other)))
+        .enumerate()
+        .filter_map(|(i, (answer, &(_, other, _)))| model.box_for(answer).map(|b| (i, on_image(b, other))))
         .collect();
     let checks = model.predict_all(
-        &implied
+        &checked
             .iter()
-            .zip(&starts)
-            .filter_map(|(b, &(_, other, _))| b.map(|b| (&sides[other], b)))
+            .map(|&(i, b)| (&sides[starts[i].1], b))
             .collect::<Vec<_>>(),
     );
-    let mut checks = checks.into_iter();
     let mut best: Option<(crate::Real, Vec<nalgebra::Point2<crate::Real>>)> = None;
-    for ((answer, implied), &(_, other, _)) in answers.iter().zip(&implied).zip(&starts) {
-        if implied.is_none() {
-            continue;
-        }
-        let check = on_side(checks.next().expect("a check for every implied box"), other);
+    for (&(i, _), check) in checked.iter().zip(checks) {
+        let answer = &answers[i];
+        let check = on_side(check, starts[i].1);
         let eyes = (answer[45] - answer[36]).norm().max(1.0);
         let disagreement = (17..68)
             .map(|k| (answer[k] - check[k]).norm())
