@@ -274,21 +274,28 @@ impl Column {
         };
         let data = photo.data();
         let at = |x: usize, y: usize| data[y * w + if mirror { w - 1 - x } else { x }];
-        let (cw, ch) = (x1 - x0 + 1, y1 - y0 + 1);
-        let mut values = Vec::with_capacity(cw * ch);
-        let mut gx = Vec::with_capacity(cw * ch);
-        let mut gy = Vec::with_capacity(cw * ch);
-        for y in y0..=y1 {
-            let (ya, yb) = (y.saturating_sub(1), (y + 1).min(h - 1));
-            for x in x0..=x1 {
-                let (xa, xb) = (x.saturating_sub(1), (x + 1).min(w - 1));
-                values.push(at(x, y));
-                gx.push((at(xb, y) - at(xa, y)) / (xb - xa).max(1) as f32);
-                gy.push((at(x, yb) - at(x, ya)) / (yb - ya).max(1) as f32);
-            }
-        }
+        // The part with one more pixel on each side where the image has one: its central
+        // differences inside that border are the whole image's (one-sided where the part
+        // meets the image's own border, as there).
+        let (px0, py0) = (x0.saturating_sub(1), y0.saturating_sub(1));
+        let (px1, py1) = ((x1 + 1).min(w - 1), (y1 + 1).min(h - 1));
+        let pw = px1 - px0 + 1;
+        let padded: Vec<f32> = (py0..=py1)
+            .flat_map(|y| (px0..=px1).map(move |x| at(x, y)))
+            .collect();
+        let (pgx, pgy) = super::central_differences(&padded, pw, py1 - py0 + 1);
+        let inner = |v: &[f32]| -> Vec<f32> {
+            (y0..=y1)
+                .flat_map(|y| {
+                    let row = (y - py0) * pw;
+                    v[row + x0 - px0..=row + x1 - px0].iter().copied()
+                })
+                .collect()
+        };
+        let (values, gx, gy) = (inner(&padded), inner(&pgx), inner(&pgy));
         Column {
-            image: GreyImage::new(cw, ch, values).expect("a part of a valid image is valid"),
+            image: GreyImage::new(x1 - x0 + 1, y1 - y0 + 1, values)
+                .expect("a part of a valid image is valid"),
             gx,
             gy,
             origin: Vector2::new(x0 as Real, y0 as Real),
