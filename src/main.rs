@@ -6,13 +6,15 @@ use std::process::ExitCode;
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
 use nalgebra::{Affine3, Matrix4, Point3, Vector3};
-use splineface::align::PhotoPoints;
 use splineface::bspline::BSplineSurface;
 use splineface::compare::CompareOptions;
-use splineface::face::{Deformation, FaceSpace, MeshOptions, Units};
+use splineface::face::{Deformation, FaceSpace, Units};
 use splineface::landmarks::{read_landmarks_json, read_vertex_indices};
 use splineface::mesh::{TriangleMesh, read_mesh};
-use splineface::pipeline::{Input, PhotoImage, PipelineOptions, reconstruct};
+use splineface::pipeline::{
+    Input, InputError, PhotoRecord, PipelineOptions, gather_inputs, has_extension, photo_files, photo_list,
+    photo_stem, reconstruct,
+};
 use splineface::reference::ReferenceFace;
 use splineface::reference::{ReferenceOptions, ReferenceScan, ReferenceSource, build_reference, fnv1a64};
 use splineface::render::{
@@ -282,89 +284,30 @@ impl OutputArgs {
         let Some(name) = &self.expression_of else {
             return Ok(None);
         };
-        match inputs.iter().position(|i| &i.points.name == name) {
-            Some(index) => Ok(Some(index)),
-            None => bail!(
-                "--expression-of {name}: no usable photo has that name (the photos are {})",
-                inputs
-                    .iter()
-                    .map(|i| i.points.name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        }
+        splineface::pipeline::photo_index(inputs, name)
+            .map(Some)
+            .map_err(|why| anyhow::anyhow!("--expression-of {name}: {why}"))
     }
 
+    /// The pipeline's options, checked by the library ([`splineface::pipeline::Settings`]).
     fn options(&self) -> Result<PipelineOptions> {
-        let units = match self.units.as_str() {
-            "mm" => {
-                if !(self.eye_distance > 0.0 && self.eye_distance.is_finite()) {
-                    bail!("--eye-distance {} must be positive", self.eye_distance);
-                }
-                Units::Millimetres {
-                    eye_distance: self.eye_distance,
-                }
-            }
-            "canonical" => Units::Canonical,
-            other => bail!("--units `{other}`: expected mm or canonical"),
-        };
-        let deformation = match self.deformation.as_str() {
-            "local" => Deformation::default(),
-            "affine" => Deformation::Affine,
-            other => bail!("--deformation `{other}`: expected local or affine"),
-        };
-        if !(self.space_noise > 0.0 && self.space_noise.is_finite()) {
-            bail!("--space-noise {} must be positive", self.space_noise);
-        }
-        if !(self.expression_sigma > 0.0 && self.expression_sigma.is_finite()) {
-            bail!("--expression-sigma {} must be positive", self.expression_sigma);
-        }
-        let shape = match self.shape.as_str() {
-            "space" => splineface::pipeline::Shape::Space {
-                noise: self.space_noise,
-                expressions: (!self.no_expressions).then_some(self.expression_sigma),
-            },
-            "deformed" => splineface::pipeline::Shape::Deformed,
-            other => bail!("--shape `{other}`: expected space or deformed"),
-        };
-        if !(self.spacing >= 0.1 && self.spacing <= 20.0) {
-            bail!(
-                "--spacing {} must be between 0.1 and 20 canonical units",
-                self.spacing
-            );
-        }
-        if !(16..=MAX_SIDE).contains(&self.depth_size) {
-            bail!(
-                "--depth-size {} must be between 16 and {MAX_SIDE}",
-                self.depth_size
-            );
-        }
-        if self.min_photos == 0 {
-            bail!("--min-photos must be at least 1");
-        }
-        if !(16..=8192).contains(&self.texture_size) {
-            bail!("--texture-size {} must be between 16 and 8192", self.texture_size);
-        }
-        Ok(PipelineOptions {
-            units,
+        let settings = splineface::pipeline::Settings {
+            units: self.units.clone(),
+            eye_distance: self.eye_distance,
+            shape: self.shape.clone(),
+            space_noise: self.space_noise,
+            expression_sigma: self.expression_sigma,
+            expressions: !self.no_expressions,
+            refine: !self.no_refine,
+            deformation: self.deformation.clone(),
+            spacing: self.spacing,
+            depth_size: self.depth_size,
+            texture_size: self.texture_size,
             min_photos: self.min_photos,
-            deformation,
-            shape,
-            mesh: MeshOptions {
-                spacing: self.spacing,
-            },
-            depth_map_size: self.depth_size,
-            texture: splineface::face::TextureOptions {
-                size: self.texture_size,
-                ..splineface::face::TextureOptions::default()
-            },
-            refine: if self.no_refine {
-                None
-            } else {
-                PipelineOptions::default().refine
-            },
-            ..PipelineOptions::default()
-        })
+        };
+        settings
+            .options()
+            .map_err(|e| anyhow::anyhow!("--{} {}: {}", e.setting.replace('_', "-"), e.value, e.expected))
     }
 }
 
@@ -1014,69 +957,6 @@ fn fit_reference(
     Ok(())
 }
 
-const IMAGE_EXTENSIONS: [&str; 7] = ["jpg", "jpeg", "png", "bmp", "tif", "tiff", "webp"];
-
-fn has_extension(path: &Path, extensions: &[&str]) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
-}
-
-/// The files of `dir` with one of `extensions`, sorted by name.
-fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>> {
-    let entries =
-        std::fs::read_dir(dir).with_context(|| format!("cannot read the directory {}", dir.display()))?;
-    let mut files: Vec<PathBuf> = entries
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file() && has_extension(p, extensions))
-        .collect();
-    files.sort();
-    Ok(files)
-}
-
-/// A photo's 40 points from a landmark file: `.pts` (68 iBUG or 40 structure points) or JSON;
-/// and the file's own points as read (68 or 40, for the photo's overlay).
-fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<nalgebra::Point2<f64>>)> {
-    let name = path.file_stem().map_or_else(
-        || path.display().to_string(),
-        |s| s.to_string_lossy().into_owned(),
-    );
-    let (points, raw) = if has_extension(path, &["json"]) {
-        let landmarks = read_landmarks_json(path)?;
-        let points = landmarks
-            .structure_2d()
-            .with_context(|| format!("{}: 2D landmarks are needed", path.display()))?;
-        let raw = match landmarks.points {
-            splineface::landmarks::LandmarkPoints::Planar(raw) => raw,
-            splineface::landmarks::LandmarkPoints::Spatial(_) => points.clone(),
-        };
-        (points, raw)
-    } else {
-        let raw = splineface::landmarks::read_pts(path)?;
-        let points = match raw.len() {
-            68 => from_ibug68(&raw).with_context(|| path.display().to_string())?,
-            40 => raw.clone(),
-            n => bail!(
-                "{}: {n} points; expected 68 (iBUG) or 40 (the structure)",
-                path.display()
-            ),
-        };
-        (points, raw)
-    };
-    Ok((
-        PhotoPoints::new(name, points).with_context(|| path.display().to_string())?,
-        raw,
-    ))
-}
-
-/// The landmark file for a photo stem in `dir`: `STEM.pts` or `STEM.json`.
-fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
-    ["pts", "json"]
-        .iter()
-        .map(|e| dir.join(format!("{stem}.{e}")))
-        .find(|p| p.is_file())
-}
-
 fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
     check_output_dir(out)?;
     let mut directories: Vec<PathBuf> = files
@@ -1154,99 +1034,41 @@ fn reconstruct_command(
         None => ReferenceFace::embedded().clone(),
     };
     let photo_paths = photo_list(photos, photo_dir)?;
-    let mut inputs = Vec::new();
-    let mut records: Vec<PhotoRecord> = Vec::new();
-    // Wall time of the photos' decoding, detection and landmarks, and per photo its
-    // [decoding, detection, landmarks] seconds.
-    let mut photo_seconds: Option<f64> = None;
-    let mut photo_timings: Vec<(String, [f64; 3])> = Vec::new();
-    let mut skipped: Vec<String> = Vec::new();
-    let mut warnings: Vec<String> = Vec::new();
-    if photo_paths.is_empty() {
-        let Some(dir) = landmark_dir else {
-            bail!(
-                "nothing to reconstruct from: give photos (PHOTO... or --photos DIR) and/or --landmarks DIR"
-            );
-        };
-        let files = files_in(dir, &["pts", "json"])?;
-        if files.is_empty() {
-            bail!("{}: no landmark files (.pts or .json)", dir.display());
-        }
-        progress(&format!("points only: {} landmark files", files.len()));
-        for file in files {
-            match read_photo_points(&file) {
-                Ok((points, _)) => {
-                    if inputs.iter().any(|i: &Input| i.points.name == points.name) {
-                        skipped.push(format!(
-                            "{}: another landmark file has the name `{}` (STEM.pts and STEM.json?)",
-                            file.display(),
-                            points.name
-                        ));
-                    } else {
-                        inputs.push(Input { points, image: None });
-                    }
-                }
-                Err(e) => skipped.push(format!("{e:#}")),
-            }
-        }
-    } else {
-        if landmark_dir.is_none() && predictor.is_none() {
-            bail!(
-                "the photos need landmarks: give --landmarks DIR (a STEM.pts or STEM.json per photo) or \
-                 --landmark-model PATH (dlib's shape_predictor_68_face_landmarks.dat, see tools/fetch-models) \
-                 to detect and landmark the faces"
-            );
-        }
+    if !photo_paths.is_empty() {
         progress(&format!("reading {} photos", photo_paths.len()));
-        // Photos are known by their stems (landmark files are matched by them, and the report
-        // names them): a second photo with a stem already taken is skipped.
-        let mut stems: std::collections::BTreeMap<String, &Path> = std::collections::BTreeMap::new();
-        let mut unique: Vec<(&Path, String)> = Vec::new();
-        for path in &photo_paths {
-            let stem = photo_stem(path);
-            if let Some(first) = stems.get(&stem) {
-                skipped.push(format!(
-                    "{}: {} has the same name `{stem}` (photos are matched to landmark files by name)",
-                    path.display(),
-                    first.display()
-                ));
-                continue;
-            }
-            stems.insert(stem.clone(), path);
-            unique.push((path, stem));
-        }
-        // Decoded, detected and landmarked in parallel; gathered in the photos' order.
-        use rayon::prelude::*;
-        let start = std::time::Instant::now();
-        let prepared: Vec<Prepared> = unique
-            .par_iter()
-            .map(|(path, stem)| prepare_photo(path, stem, landmark_dir, predictor.as_ref()))
-            .collect();
-        photo_seconds = Some(start.elapsed().as_secs_f64());
-        for p in prepared {
-            if let Some(note) = p.warning {
-                progress(&note);
-                warnings.push(note);
-            }
-            if let Some(why) = p.skipped {
-                skipped.push(why);
-            }
-            if let Some(input) = p.input {
-                inputs.push(input);
-            }
-            photo_timings.push((p.record.name.clone(), p.seconds));
-            records.push(p.record);
-        }
     }
-    for s in &skipped {
+    let set = gather_inputs(&photo_paths, landmark_dir, predictor.as_ref()).map_err(|e| match e {
+        InputError::Nothing => anyhow::anyhow!(
+            "nothing to reconstruct from: give photos (PHOTO... or --photos DIR) and/or --landmarks DIR"
+        ),
+        InputError::NoLandmarks => anyhow::anyhow!(
+            "the photos need landmarks: give --landmarks DIR (a STEM.pts or STEM.json per photo) or \
+             --landmark-model PATH (dlib's shape_predictor_68_face_landmarks.dat, see tools/fetch-models) \
+             to detect and landmark the faces"
+        ),
+        e => e.into(),
+    })?;
+    if photo_paths.is_empty() {
+        progress(&format!(
+            "points only: {} landmark files",
+            set.inputs.len() + set.skipped.len()
+        ));
+    }
+    for note in &set.warnings {
+        progress(note);
+    }
+    for s in &set.skipped {
         progress(&format!("skipped {s}"));
     }
-    if inputs.len() < options.min_photos {
+    if let Err(InputError::TooFewPhotos {
+        usable,
+        needed,
+        skipped,
+    }) = set.check_count(options.min_photos)
+    {
         bail!(
-            "{} usable photo{}, at least {} needed (--min-photos){}{}",
-            inputs.len(),
-            if inputs.len() == 1 { "" } else { "s" },
-            options.min_photos,
+            "{usable} usable photo{}, at least {needed} needed (--min-photos){}{}",
+            if usable == 1 { "" } else { "s" },
             skipped
                 .iter()
                 .map(|s| format!("\n  skipped {s}"))
@@ -1262,73 +1084,10 @@ fn reconstruct_command(
     // stages whose buffers make the run's peak (RASL, the texture).
     drop(predictor);
     let mut options = options;
-    options.expression_of = output.expression_photo(&inputs)?;
-    let result = reconstruct(&inputs, &reference, &options, progress)?;
-    let mut files = result.files()?;
+    options.expression_of = output.expression_photo(&set.inputs)?;
+    let result = reconstruct(&set.inputs, &reference, &options, progress)?;
     progress("drawing the overlays and the report page");
-    let overlay_start = std::time::Instant::now();
-    let photo_outputs = photo_files(
-        &records,
-        Path::new("landmarks"),
-        &inputs,
-        Some(&result),
-        &mut warnings,
-    );
-    let overlay_seconds = overlay_start.elapsed().as_secs_f64();
-    // Record the skipped photos, detection warnings and the photo stages' times in the report.
-    let mut front_stages: Vec<serde_json::Value> = Vec::new();
-    if let Some(seconds) = model_seconds {
-        front_stages.push(serde_json::json!({ "stage": "landmark model", "ms": 1e3 * seconds }));
-    }
-    if let Some(seconds) = photo_seconds {
-        front_stages.push(serde_json::json!({
-            "stage": "photos: decoding, detection, landmarks (in parallel)",
-            "ms": 1e3 * seconds,
-        }));
-    }
-    if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
-        let mut report: serde_json::Value = serde_json::from_slice(bytes)?;
-        if !skipped.is_empty() {
-            report["photos_skipped"] = skipped.clone().into();
-        }
-        if let Some(list) = report["warnings"].as_array_mut() {
-            list.extend(warnings.iter().map(|w| serde_json::Value::from(w.as_str())));
-        }
-        if let Some(list) = report["timings"].as_array_mut() {
-            list.splice(0..0, front_stages);
-            list.push(serde_json::json!({ "stage": "overlays", "ms": 1e3 * overlay_seconds }));
-        }
-        if !photo_timings.is_empty() {
-            report["photo_timings"] = photo_timings
-                .iter()
-                .map(|(name, [decode, detect, landmark])| {
-                    serde_json::json!({
-                        "name": name,
-                        "decoding_ms": 1e3 * decode,
-                        "detection_ms": 1e3 * detect,
-                        "landmarks_ms": 1e3 * landmark,
-                    })
-                })
-                .collect::<Vec<_>>()
-                .into();
-        }
-        *bytes = serde_json::to_vec_pretty(&report)?;
-    }
-    files.extend(photo_outputs);
-    let page = splineface::report::report_page(
-        &files,
-        &splineface::report::PageOptions {
-            // From the inputs only, so that the same inputs give the same page wherever it goes.
-            title: format!(
-                "splineface: a face from {} photo{}",
-                inputs.len(),
-                if inputs.len() == 1 { "" } else { "s" }
-            ),
-            reconstruction: PathBuf::new(),
-            comparison: None,
-        },
-    );
-    files.push(("report.html".into(), page.into_bytes()));
+    let files = set.files(&result, model_seconds)?;
     write_into(out, &files)?;
     for d in &result.dropped {
         progress(&format!("dropped {}: {}", d.name, d.reason));
@@ -1340,10 +1099,10 @@ fn reconstruct_command(
     println!(
         "  photos     {} used{}",
         result.depth.photos.len(),
-        if skipped.is_empty() {
+        if set.skipped.is_empty() {
             String::new()
         } else {
-            format!(", {} skipped", skipped.len())
+            format!(", {} skipped", set.skipped.len())
         }
     );
     println!(
@@ -1620,26 +1379,6 @@ fn compact_model(model: &Path, out: &Path) -> Result<()> {
 }
 
 /// The photos named on the command line and in `--photos DIR`, each checked to exist.
-fn photo_list(photos: &[PathBuf], photo_dir: Option<&Path>) -> Result<Vec<PathBuf>> {
-    let mut paths = photos.to_vec();
-    if let Some(dir) = photo_dir {
-        paths.extend(files_in(dir, &IMAGE_EXTENSIONS)?);
-    }
-    for p in &paths {
-        if !p.exists() {
-            bail!("{}: no such file", p.display());
-        }
-    }
-    Ok(paths)
-}
-
-/// The file stem of a photo, its name in every output.
-fn photo_stem(path: &Path) -> String {
-    path.file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default()
-}
-
 fn landmarks_command(
     photos: &[PathBuf],
     photo_dir: Option<&Path>,
@@ -1688,7 +1427,7 @@ fn landmarks_command(
                 Ok(d) => d,
                 Err(e) => return Ok((format!("{}: skipped: {}", path.display(), e.problem), None, None)),
             };
-            match find_landmarks(&model, &decoded, stem) {
+            match splineface::pipeline::landmark_photo(&model, &decoded, stem) {
                 Ok((_, found, _)) => {
                     let b = found.face.bbox;
                     let mut line = format!(
@@ -1749,265 +1488,4 @@ fn landmarks_command(
         println!("  {line}");
     }
     Ok(())
-}
-
-/// Detects the faces in a photo and landmarks the subject's (as
-/// [`splineface::detect::landmark_subject`]): its 40 points, the detector's answer (box, 68
-/// points, a note when smaller faces were ignored), and the seconds the detection and the
-/// landmarks took.
-fn find_landmarks(
-    model: &splineface::landmarker::ShapePredictor,
-    image: &image::DynamicImage,
-    name: &str,
-) -> std::result::Result<(PhotoPoints, splineface::detect::LandmarkedFace, [f64; 2]), String> {
-    let start = std::time::Instant::now();
-    let faces = splineface::detect::detect_subject_faces(&image.to_luma8());
-    let (face, note) = splineface::detect::subject_face(&faces).map_err(|e| e.to_string())?;
-    let detection = start.elapsed().as_secs_f64();
-    let start = std::time::Instant::now();
-    let found = splineface::detect::landmark_face(model, &image.to_rgb8(), face)?;
-    let found = splineface::detect::LandmarkedFace { note, ..found };
-    let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
-    Ok((points, found, [detection, start.elapsed().as_secs_f64()]))
-}
-
-/// One photo made ready for the reconstruction ([`prepare_photo`]).
-struct Prepared {
-    record: PhotoRecord,
-    /// The photo and its points, unless it was skipped.
-    input: Option<Input>,
-    /// Why it was skipped (`path: reason`).
-    skipped: Option<String>,
-    /// A detection note (`path: note`).
-    warning: Option<String>,
-    /// Seconds of decoding, detection and landmarks.
-    seconds: [f64; 3],
-}
-
-/// Decodes a photo and finds its points: from its landmark file in `landmark_dir`, else by
-/// detection and `predictor`.
-fn prepare_photo(
-    path: &Path,
-    stem: &str,
-    landmark_dir: Option<&Path>,
-    predictor: Option<&splineface::landmarker::ShapePredictor>,
-) -> Prepared {
-    let start = std::time::Instant::now();
-    let decoded = match splineface::align::decode_photo(path) {
-        Ok(d) => d,
-        Err(e) => {
-            return Prepared {
-                record: PhotoRecord::skipped(stem, None, e.problem.to_string()),
-                input: None,
-                skipped: Some(e.to_string()),
-                warning: None,
-                seconds: [start.elapsed().as_secs_f64(), 0.0, 0.0],
-            };
-        }
-    };
-    let mut seconds = [start.elapsed().as_secs_f64(), 0.0, 0.0];
-    let skip = |reason: String, seconds: [f64; 3]| Prepared {
-        skipped: Some(format!("{}: {reason}", path.display())),
-        record: PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason),
-        input: None,
-        warning: None,
-        seconds,
-    };
-    let file = landmark_dir.and_then(|dir| landmark_file(dir, stem));
-    let mut warning = None;
-    let (points, record) = match (file, predictor) {
-        (Some(file), _) => match read_photo_points(&file) {
-            Ok((points, raw)) => (points, PhotoRecord::given(stem, raw)),
-            Err(e) => return skip(format!("its landmarks: {e:#}"), seconds),
-        },
-        (None, Some(model)) => match find_landmarks(model, &decoded, stem) {
-            Ok((points, found, [detection, landmarks])) => {
-                seconds[1] = detection;
-                seconds[2] = landmarks;
-                if let Some(note) = &found.note {
-                    warning = Some(format!("{}: {note}", path.display()));
-                }
-                (points, PhotoRecord::from_detection(stem, &found))
-            }
-            Err(reason) => return skip(reason, seconds),
-        },
-        (None, None) => {
-            return skip(
-                format!(
-                    "no landmark file {stem}.pts or {stem}.json in {} (and no --landmark-model)",
-                    landmark_dir.map_or_else(String::new, |d| d.display().to_string())
-                ),
-                seconds,
-            );
-        }
-    };
-    match PhotoImage::from_dynamic(&decoded) {
-        Ok(image) => Prepared {
-            record,
-            input: Some(Input {
-                points: PhotoPoints {
-                    name: stem.to_owned(),
-                    ..points
-                },
-                image: Some(image),
-            }),
-            skipped: None,
-            warning,
-            seconds,
-        },
-        Err(e) => Prepared {
-            warning,
-            ..skip(e.to_string(), seconds)
-        },
-    }
-}
-
-/// One photo as read and landmarked: what its overlay and landmark file are made of.
-struct PhotoRecord {
-    /// Its name (the file stem).
-    name: String,
-    /// The photo, when the record keeps it (a reconstructed photo's is in its [`Input`]).
-    image: Option<image::RgbImage>,
-    /// The detector's box `[x, y, width, height]`, when detected.
-    face_box: Option<[f64; 4]>,
-    /// The landmarks as detected (68) or read from its file (68 or 40), pixels.
-    landmarks: Vec<nalgebra::Point2<f64>>,
-    /// Whether the landmarks were detected (not read from a file).
-    detected: bool,
-    /// Why the photo was skipped, if it was.
-    skipped: Option<String>,
-}
-
-impl PhotoRecord {
-    /// A photo whose landmarks were given (a landmark file, the demo's points), not detected.
-    fn given(name: &str, landmarks: Vec<nalgebra::Point2<f64>>) -> Self {
-        PhotoRecord {
-            name: name.to_owned(),
-            image: None,
-            face_box: None,
-            landmarks,
-            detected: false,
-            skipped: None,
-        }
-    }
-
-    fn skipped(name: &str, image: Option<image::RgbImage>, reason: String) -> Self {
-        PhotoRecord {
-            name: name.to_owned(),
-            image,
-            face_box: None,
-            landmarks: Vec::new(),
-            detected: false,
-            skipped: Some(reason),
-        }
-    }
-
-    fn from_detection(name: &str, found: &splineface::detect::LandmarkedFace) -> Self {
-        let b = found.face.bbox;
-        PhotoRecord {
-            name: name.to_owned(),
-            image: None,
-            face_box: Some([
-                b.left as f64,
-                b.top as f64,
-                (b.right - b.left + 1) as f64,
-                (b.bottom - b.top + 1) as f64,
-            ]),
-            landmarks: found.ibug.clone(),
-            detected: true,
-            skipped: None,
-        }
-    }
-}
-
-/// `overlays/NAME.png` for every record with a photo ([`splineface::report::draw_overlay`]),
-/// and `NAME.pts` in `landmark_folder` for every detected one; the overlays of a reconstruction's
-/// photos carry its fitted points and each photo's fate. A photo whose overlay cannot be
-/// encoded gets a warning instead.
-fn photo_files(
-    records: &[PhotoRecord],
-    landmark_folder: &Path,
-    inputs: &[Input],
-    result: Option<&splineface::pipeline::Reconstruction>,
-    warnings: &mut Vec<String>,
-) -> Vec<(PathBuf, Vec<u8>)> {
-    use rayon::prelude::*;
-    use splineface::report::{Overlay, PhotoStatus, draw_overlay};
-    // Each photo's files, or why its overlay is missing; the photos in parallel, their files
-    // in the records' order.
-    type PhotoOutputs = (Vec<(PathBuf, Vec<u8>)>, Option<String>);
-    let per_photo: Vec<PhotoOutputs> = records
-        .par_iter()
-        .map(|record| {
-            let mut files = Vec::new();
-            if record.detected {
-                files.push((
-                    landmark_folder.join(format!("{}.pts", record.name)),
-                    splineface::landmarks::format_pts(&record.landmarks).into_bytes(),
-                ));
-            }
-            let input = inputs.iter().find(|i| i.points.name == record.name);
-            let image = match (
-                &record.image,
-                &record.skipped,
-                input.and_then(|i| i.image.as_ref()),
-            ) {
-                (Some(image), _, _) => image,
-                (None, None, Some(photo)) => &photo.colour,
-                _ => return (files, None), // an undecodable photo, or a points-only run: no picture
-            };
-            let mut notes = Vec::new();
-            let mut fitted = None;
-            let status = match (&record.skipped, result) {
-                (Some(why), _) => PhotoStatus::Skipped(why.clone()),
-                (None, Some(result)) => {
-                    if let Some(d) = result.dropped.iter().find(|d| d.name == record.name) {
-                        PhotoStatus::Dropped(d.reason.clone())
-                    } else {
-                        if let Some(slot) = result.photo_fits.iter().position(|f| f.name == record.name) {
-                            let fit = &result.photo_fits[slot];
-                            let [yaw, pitch, roll] = result.depth.photos[slot].pose.yaw_pitch_roll_degrees();
-                            notes.push(format!(
-                                "yaw {yaw:.1}°, pitch {pitch:.1}°, roll {roll:.1}°; the fitted face's points lie {:.1} px RMS from the photo's",
-                                fit.rms_pixels
-                            ));
-                            if let Some(input) = input {
-                                fitted = Some((input.points.points.as_slice(), fit.points.as_slice()));
-                            }
-                        }
-                        PhotoStatus::Used
-                    }
-                }
-                (None, None) => PhotoStatus::Landmarked,
-            };
-            if record.detected && record.skipped.is_none() {
-                notes.push(format!(
-                    "landmarks: {}",
-                    landmark_folder.join(format!("{}.pts", record.name)).display()
-                ));
-            }
-            let picture = draw_overlay(&Overlay {
-                image,
-                name: &record.name,
-                status: &status,
-                notes: &notes,
-                face_box: record.face_box,
-                landmarks: &record.landmarks,
-                fitted,
-            });
-            match splineface::export::encode_png(&picture) {
-                Ok(png) => {
-                    files.push((Path::new("overlays").join(format!("{}.png", record.name)), png));
-                    (files, None)
-                }
-                Err(e) => (files, Some(format!("{}: its overlay could not be encoded: {e}", record.name))),
-            }
-        })
-        .collect();
-    let mut files = Vec::new();
-    for (photo_files, warning) in per_photo {
-        files.extend(photo_files);
-        warnings.extend(warning);
-    }
-    files
 }

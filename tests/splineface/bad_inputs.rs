@@ -597,11 +597,11 @@ fn bad_paths_and_flags_fail_cleanly() {
         ),
         (
             with_flag("--spacing", "NaN"),
-            vec!["--spacing NaN must be between 0.1 and 20"],
+            vec!["--spacing NaN: must be between 0.1 and 20"],
         ),
         (
             with_flag("--expression-sigma", "0"),
-            vec!["--expression-sigma 0 must be positive"],
+            vec!["--expression-sigma 0: must be positive"],
         ),
         (
             with_flag("--expression-of", "no-such-photo"),
@@ -609,19 +609,19 @@ fn bad_paths_and_flags_fail_cleanly() {
         ),
         (
             with_flag("--eye-distance", "-63"),
-            vec!["--eye-distance -63 must be positive"],
+            vec!["--eye-distance -63: must be positive"],
         ),
         (
             with_flag("--depth-size", "99999999"),
-            vec!["--depth-size 99999999 must be between 16 and"],
+            vec!["--depth-size 99999999: must be between 16 and"],
         ),
         (
             with_flag("--texture-size", "8"),
-            vec!["--texture-size 8 must be between 16 and 8192"],
+            vec!["--texture-size 8: must be between 16 and 8192"],
         ),
         (
             with_flag("--min-photos", "0"),
-            vec!["--min-photos must be at least 1"],
+            vec!["--min-photos 0: must be at least 1"],
         ),
         (
             with_flag("--min-photos", "4"),

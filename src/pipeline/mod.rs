@@ -28,6 +28,16 @@
 //! Everything is computed before anything is written, so a caller can write the files all or
 //! nothing ([`crate::io::write_files_atomically`]).
 
+mod photos;
+mod settings;
+
+pub use photos::{
+    IMAGE_EXTENSIONS, InputError, LANDMARK_EXTENSIONS, PhotoRecord, PhotoSet, PhotoTiming, files_in,
+    gather_inputs, has_extension, landmark_file, landmark_photo, photo_files, photo_index, photo_list,
+    photo_stem, read_photo_points,
+};
+pub use settings::{SettingError, Settings};
+
 use std::path::PathBuf;
 use std::time::Instant;
 
