@@ -2,7 +2,7 @@
 //! behind.
 
 use std::io::{Read, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// The largest landmark or settings file read: 64 MiB (a 68-point file is about 1 KB).
 pub const MAX_SMALL_INPUT_BYTES: u64 = 64 << 20;
@@ -239,4 +239,124 @@ pub fn write_files_atomically(
         }
     }
     Ok(())
+}
+
+/// Why an output folder cannot be used or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum OutputError {
+    /// The path exists and is a file.
+    #[error("{}: exists and is not a directory", path.display())]
+    NotADirectory {
+        /// The output folder.
+        path: PathBuf,
+    },
+    /// The folder cannot be created: an ancestor is a file.
+    #[error("{}: cannot be created, {} is not a directory", path.display(), ancestor.display())]
+    AncestorNotADirectory {
+        /// The output folder.
+        path: PathBuf,
+        /// Its nearest existing ancestor.
+        ancestor: PathBuf,
+    },
+    /// No file can be made where the folder is or would be.
+    #[error("{}: cannot write there: cannot create a file in {}: {error}", path.display(), directory.display())]
+    NotWritable {
+        /// The output folder.
+        path: PathBuf,
+        /// The folder tried.
+        directory: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// A folder could not be created.
+    #[error("cannot create {}: {error}", path.display())]
+    CreateDirectory {
+        /// The folder.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// A file could not be written.
+    #[error("cannot write {}: {error}", path.display())]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+}
+
+/// Checks, before any work, that `out` can be the output folder: it is a folder or can be
+/// created as one (its nearest existing ancestor is a folder in which a file can be made).
+/// Catches a file in the way, a read-only file system or a missing permission up front rather
+/// than after minutes of computing.
+///
+/// # Errors
+/// [`OutputError::NotADirectory`], [`OutputError::AncestorNotADirectory`] or
+/// [`OutputError::NotWritable`].
+pub fn check_output_dir(out: &Path) -> Result<(), OutputError> {
+    if out.exists() && !out.is_dir() {
+        return Err(OutputError::NotADirectory {
+            path: out.to_path_buf(),
+        });
+    }
+    let existing = out
+        .ancestors()
+        .map(|a| {
+            if a.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                a
+            }
+        })
+        .find(|a| a.exists())
+        .unwrap_or(Path::new("."));
+    if !existing.is_dir() {
+        return Err(OutputError::AncestorNotADirectory {
+            path: out.to_path_buf(),
+            ancestor: existing.to_path_buf(),
+        });
+    }
+    probe_writable(existing).map_err(|error| OutputError::NotWritable {
+        path: out.to_path_buf(),
+        directory: existing.to_path_buf(),
+        error,
+    })
+}
+
+/// Makes and removes an empty file in `directory`: whether files can be made there.
+///
+/// # Errors
+/// Why not.
+pub fn probe_writable(directory: &Path) -> std::io::Result<()> {
+    let probe = directory.join(format!(".splineface-probe-{}", std::process::id()));
+    std::fs::File::create(&probe)?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Writes `files` (paths relative to `out`) into the folder `out`, creating it and the
+/// sub-folders the paths name, all or nothing as [`write_files_atomically`] does.
+///
+/// # Errors
+/// As [`check_output_dir`]; [`OutputError::CreateDirectory`] or [`OutputError::Write`] naming
+/// the path that failed.
+pub fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<(), OutputError> {
+    check_output_dir(out)?;
+    let mut directories: Vec<PathBuf> = files
+        .iter()
+        .filter_map(|(p, _)| p.parent().map(|d| out.join(d)))
+        .collect();
+    directories.push(out.to_path_buf());
+    directories.sort();
+    directories.dedup();
+    for d in &directories {
+        std::fs::create_dir_all(d).map_err(|error| OutputError::CreateDirectory {
+            path: d.clone(),
+            error,
+        })?;
+    }
+    let absolute: Vec<(PathBuf, Vec<u8>)> = files.iter().map(|(p, b)| (out.join(p), b.clone())).collect();
+    write_files_atomically(&absolute).map_err(|(path, error)| OutputError::Write { path, error })
 }

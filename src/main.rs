@@ -503,33 +503,9 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
     Ok(())
 }
 
-/// Checks, before any work, that `out` can be the output directory: it is a directory or can
-/// be created as one (its nearest existing ancestor is a directory in which a file can be
-/// made). Catches a file in the way, a read-only file system or a missing permission up front
-/// rather than after minutes of computing.
+/// [`splineface::io::check_output_dir`].
 fn check_output_dir(out: &Path) -> Result<()> {
-    if out.exists() && !out.is_dir() {
-        bail!("{}: exists and is not a directory", out.display());
-    }
-    let existing = out
-        .ancestors()
-        .map(|a| {
-            if a.as_os_str().is_empty() {
-                Path::new(".")
-            } else {
-                a
-            }
-        })
-        .find(|a| a.exists())
-        .unwrap_or(Path::new("."));
-    if !existing.is_dir() {
-        bail!(
-            "{}: cannot be created, {} is not a directory",
-            out.display(),
-            existing.display()
-        );
-    }
-    probe_writable(existing).with_context(|| format!("{}: cannot write there", out.display()))
+    Ok(splineface::io::check_output_dir(out)?)
 }
 
 /// Checks, before any work, that an output file can be written: its directory exists and a
@@ -557,11 +533,8 @@ fn check_output_file(path: &Path) -> Result<()> {
 
 /// Makes and removes an empty file in `directory`.
 fn probe_writable(directory: &Path) -> Result<()> {
-    let probe = directory.join(format!(".splineface-probe-{}", std::process::id()));
-    std::fs::File::create(&probe)
-        .with_context(|| format!("cannot create a file in {}", directory.display()))?;
-    let _ = std::fs::remove_file(&probe);
-    Ok(())
+    splineface::io::probe_writable(directory)
+        .with_context(|| format!("cannot create a file in {}", directory.display()))
 }
 
 fn write_files(files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
@@ -958,19 +931,7 @@ fn fit_reference(
 }
 
 fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
-    check_output_dir(out)?;
-    let mut directories: Vec<PathBuf> = files
-        .iter()
-        .filter_map(|(p, _)| p.parent().map(|d| out.join(d)))
-        .collect();
-    directories.push(out.to_path_buf());
-    directories.sort();
-    directories.dedup();
-    for d in &directories {
-        std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
-    }
-    let absolute: Vec<(PathBuf, Vec<u8>)> = files.iter().map(|(p, b)| (out.join(p), b.clone())).collect();
-    write_files(&absolute)
+    Ok(splineface::io::write_into(out, files)?)
 }
 
 /// The progress display: a spinner with the current stage when standard error is a terminal,

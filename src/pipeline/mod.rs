@@ -852,6 +852,35 @@ impl Reconstruction {
             .transformed(&self.options.units.transform())
     }
 
+    /// The depth map of `depth.exr`: the output mesh seen from the front, in the output units,
+    /// over a raster whose larger side is [`PipelineOptions::depth_map_size`] pixels.
+    ///
+    /// # Errors
+    /// Why no raster could be framed around the mesh, in words.
+    pub fn depth_map(&self) -> Result<DepthMap, String> {
+        self.depth_map_of(&self.output_mesh())
+    }
+
+    fn depth_map_of(&self, mesh: &TriangleMesh) -> Result<DepthMap, String> {
+        let size = self.options.depth_map_size;
+        let view = View::front();
+        let (lo, hi) = mesh.positions().iter().fold(
+            (
+                Point3::from([Real::INFINITY; 3]),
+                Point3::from([Real::NEG_INFINITY; 3]),
+            ),
+            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
+        );
+        let aspect = (hi.y - lo.y) / (hi.x - lo.x).max(Real::MIN_POSITIVE);
+        let (w, h) = if aspect >= 1.0 {
+            (((size as Real) / aspect).round().max(1.0) as usize, size)
+        } else {
+            (size, ((size as Real) * aspect).round().max(1.0) as usize)
+        };
+        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)?;
+        Ok(DepthMap::render(mesh, &view, &raster))
+    }
+
     /// Every output file, as `(path relative to the output directory, bytes)`: see the module
     /// documentation.
     ///
@@ -931,24 +960,7 @@ impl Reconstruction {
         files.push(("surface.step".into(), step.into_bytes()));
 
         // The depth map, from the front.
-        let size = self.options.depth_map_size;
-        let view = View::front();
-        let (lo, hi) = mesh.positions().iter().fold(
-            (
-                Point3::from([Real::INFINITY; 3]),
-                Point3::from([Real::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-        );
-        let aspect = (hi.y - lo.y) / (hi.x - lo.x).max(Real::MIN_POSITIVE);
-        let (w, h) = if aspect >= 1.0 {
-            (((size as Real) / aspect).round().max(1.0) as usize, size)
-        } else {
-            (size, ((size as Real) * aspect).round().max(1.0) as usize)
-        };
-        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)
-            .map_err(encode_error("depth.exr"))?;
-        let map = DepthMap::render(&mesh, &view, &raster);
+        let map = self.depth_map_of(&mesh).map_err(encode_error("depth.exr"))?;
         let exr = encode_depth_exr(&map).map_err(|e| encode_error("depth.exr")(e.to_string()))?;
         let png = encode_depth_png(&map).map_err(|e| encode_error("depth.png")(e.to_string()))?;
         let preview = shaded_png(&map).map_err(|e| encode_error("preview.png")(e.to_string()))?;

@@ -1,0 +1,149 @@
+"""Type stubs of splineface (the native module splineface._native, re-exported)."""
+
+import os
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+_Path = Union[str, "os.PathLike[str]"]
+_Floats = npt.ArrayLike
+
+class SplinefaceError(Exception):
+    """A reconstruction, model or file that could not be used; the message names it."""
+
+class BSplineSurface:
+    """A tensor-product B-spline surface with a (rows, cols) grid of 3D control points."""
+
+    def __init__(
+        self,
+        control_points: _Floats,
+        degree_u: int = 3,
+        degree_v: int = 3,
+        knots_u: Optional[_Floats] = None,
+        knots_v: Optional[_Floats] = None,
+    ) -> None:
+        """control_points: float64 (rows, cols, 3); knots default to clamped uniform over [0, 1]."""
+    @staticmethod
+    def fit(
+        points: _Floats,
+        params: _Floats,
+        shape: Tuple[int, int],
+        degree: Union[int, Tuple[int, int], None] = None,
+        knots_u: Optional[_Floats] = None,
+        knots_v: Optional[_Floats] = None,
+        weights: Optional[_Floats] = None,
+        smoothness: float = 0.0,
+    ) -> "BSplineSurface":
+        """Least-squares control grid of `shape` for points (n, 3) at params (n, 2)."""
+    def eval(self, params: _Floats) -> npt.NDArray[np.float64]:
+        """The surface at params (n, 2): (n, 3)."""
+    def eval_grid(self, us: _Floats, vs: _Floats) -> npt.NDArray[np.float64]:
+        """The surface on the grid us × vs: (len(us), len(vs), 3)."""
+    def derivatives(self, params: _Floats, order: int = 1) -> npt.NDArray[np.float64]:
+        """(n, order + 1, order + 1, 3): [s, k, l] = d^(k+l) F / du^k dv^l at params[s]."""
+    def normal(self, params: _Floats) -> npt.NDArray[np.float64]:
+        """Unit normals (n, 3), NaN where the surface is degenerate."""
+    @property
+    def control_points(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def knots_u(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def knots_v(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def degree_u(self) -> int: ...
+    @property
+    def degree_v(self) -> int: ...
+    @property
+    def domain_u(self) -> Tuple[float, float]: ...
+    @property
+    def domain_v(self) -> Tuple[float, float]: ...
+    @property
+    def fit_report(self) -> Optional[Dict[str, float]]:
+        """samples, rms, max, max_index, smoothness of a fitted surface; else None."""
+    def to_json(self) -> str: ...
+    @staticmethod
+    def from_json(text: str) -> "BSplineSurface": ...
+
+class Face:
+    """A detected face: box (x, y, width, height), score, 68 iBUG points (68, 2)."""
+
+    @property
+    def box(self) -> Tuple[int, int, int, int]: ...
+    @property
+    def score(self) -> float: ...
+    @property
+    def disagreement(self) -> float: ...
+    @property
+    def note(self) -> Optional[str]: ...
+    @property
+    def points(self) -> npt.NDArray[np.float64]: ...
+
+class Landmarker:
+    """dlib's 68-point model (the .dat or splineface's compact form), loaded once."""
+
+    def __init__(self, model_path: _Path) -> None: ...
+    def detect(self, image: npt.NDArray[np.uint8]) -> List[Face]:
+        """Every face of a uint8 (h, w) or (h, w, 3) RGB image, largest first."""
+    def subject(self, image: npt.NDArray[np.uint8]) -> Face:
+        """The portrait's subject, as reconstruct picks it; SplinefaceError if none or ambiguous."""
+
+class Reconstruction:
+    """A finished reconstruction: arrays, report, and every output file."""
+
+    @property
+    def vertices(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def triangles(self) -> npt.NDArray[np.uint32]: ...
+    @property
+    def uv(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def texture(self) -> Optional[npt.NDArray[np.uint8]]: ...
+    @property
+    def depth(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def structure(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def units(self) -> str: ...
+    @property
+    def poses(self) -> List[Dict[str, Any]]: ...
+    @property
+    def report(self) -> Dict[str, Any]: ...
+    @property
+    def photos_used(self) -> List[str]: ...
+    @property
+    def photos_skipped(self) -> List[str]: ...
+    @property
+    def files(self) -> List[str]: ...
+    def save(self, directory: _Path) -> None:
+        """Writes every output file into directory, all or nothing."""
+
+def reconstruct(
+    photos: Union[_Path, Sequence[_Path], None] = None,
+    landmarks: Optional[_Path] = None,
+    landmark_model: Union[_Path, Landmarker, None] = None,
+    reference: Optional[_Path] = None,
+    *,
+    expression_of: Optional[str] = None,
+    units: str = "mm",
+    eye_distance: float = 63.0,
+    shape: str = "space",
+    space_noise: float = 4.0,
+    expression_sigma: float = 0.5,
+    expressions: bool = True,
+    refine: bool = True,
+    deformation: str = "local",
+    spacing: float = 1.0,
+    depth_size: int = 512,
+    texture_size: int = 1024,
+    min_photos: int = 2,
+) -> Reconstruction:
+    """A face from photos (a folder, a path or paths; landmarks from files in `landmarks`,
+    matched by name, or detected with `landmark_model`), or from a folder of landmark files
+    alone. The keywords are the command line's flags."""
+
+def write_demo_photos(directory: _Path, photos: int = 12, noise: float = 1.0, seed: int = 2016) -> List[str]:
+    """Writes rendered photos of the embedded demo subject and their landmark files into
+    directory (inputs that need no landmark model); returns the files' names."""
