@@ -66,6 +66,7 @@
 #![warn(missing_docs)]
 
 pub mod align;
+pub mod batch;
 pub mod bspline;
 pub mod compare;
 pub mod demo;

@@ -121,6 +121,31 @@ enum Command {
         #[command(flatten)]
         output: OutputArgs,
     },
+    /// Reconstruct many subjects: one sub-folder of ROOT per subject (its photos and/or
+    /// landmark files), each written to OUT/NAME as `reconstruct` writes it, subjects in
+    /// parallel with the model loaded once. Resumable: a subject whose inputs and options are
+    /// unchanged since its outputs were written is skipped. Writes OUT/summary.csv and
+    /// OUT/summary.jsonl (one row per subject); a failed subject is a row, never the end of
+    /// the batch (the exit status is 1 if any failed).
+    Batch {
+        /// The folder of subject folders.
+        root: PathBuf,
+        /// A reference face file (default: the embedded ICT mean face).
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// dlib's 68-point model for photos without a landmark file. Default:
+        /// $SPLINEFACE_LANDMARK_MODEL.
+        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
+        landmark_model: Option<PathBuf>,
+        /// The directory to write into (created if missing; not inside ROOT).
+        #[arg(long)]
+        out: PathBuf,
+        /// Reconstruct every subject, even those whose outputs are up to date.
+        #[arg(long)]
+        force: bool,
+        #[command(flatten)]
+        output: OutputArgs,
+    },
     /// Detect the face in each photo and find its 68 landmarks: writes `NAME.pts` (iBUG,
     /// readable back by `reconstruct --landmarks DIR`), with `--json` also `NAME.json` (the
     /// project's landmark JSON), and `overlays/NAME.png` (the photo with the face box and the
@@ -378,6 +403,21 @@ fn run(cli: Cli) -> Result<()> {
             reference.as_deref(),
             landmark_model.as_deref(),
             &out,
+            &output,
+        ),
+        Command::Batch {
+            root,
+            reference,
+            landmark_model,
+            out,
+            force,
+            output,
+        } => batch_command(
+            &root,
+            reference.as_deref(),
+            landmark_model.as_deref(),
+            &out,
+            force,
             &output,
         ),
         Command::CompactModel { model, out } => compact_model(&model, &out),
@@ -985,15 +1025,7 @@ fn reconstruct_command(
         None => None,
     };
     let model_seconds = predictor.is_some().then(|| model_start.elapsed().as_secs_f64());
-    let reference = match reference_path {
-        Some(path) => {
-            let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            ReferenceFace::from_json(&text)
-                .with_context(|| format!("{} is not a valid reference face", path.display()))?
-        }
-        None => ReferenceFace::embedded().clone(),
-    };
+    let reference = read_reference(reference_path)?;
     let photo_paths = photo_list(photos, photo_dir)?;
     if !photo_paths.is_empty() {
         progress(&format!("reading {} photos", photo_paths.len()));
@@ -1095,6 +1127,146 @@ fn reconstruct_command(
                 println!("    {ms:>8.0} ms  {name}");
             }
         }
+    }
+    Ok(())
+}
+
+/// A reference face file, or the embedded one when `path` is `None`.
+fn read_reference(path: Option<&Path>) -> Result<ReferenceFace> {
+    match path {
+        Some(path) => {
+            let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            ReferenceFace::from_json(&text)
+                .with_context(|| format!("{} is not a valid reference face", path.display()))
+        }
+        None => Ok(ReferenceFace::embedded().clone()),
+    }
+}
+
+/// The identity of an optional input file in a batch's fingerprints: `none`, or its length
+/// and hash.
+fn file_identity(path: Option<&Path>) -> Result<String> {
+    match path {
+        None => Ok("none".to_owned()),
+        Some(path) => {
+            let bytes = splineface::io::read_input(path, splineface::io::MAX_LARGE_INPUT_BYTES)
+                .with_context(|| format!("cannot read {}", path.display()))?;
+            Ok(format!("{} {}", bytes.len(), fnv1a64(&bytes)))
+        }
+    }
+}
+
+fn batch_command(
+    root: &Path,
+    reference_path: Option<&Path>,
+    landmark_model: Option<&Path>,
+    out: &Path,
+    force: bool,
+    output: &OutputArgs,
+) -> Result<()> {
+    use rayon::prelude::*;
+    use splineface::batch::{BatchJob, Status, check_output, run_subject, subjects, write_summary};
+    let options = output.options()?;
+    if output.expression_of.is_some() {
+        bail!("--expression-of names one photo; it has no meaning for a batch");
+    }
+    let subjects = subjects(root)?;
+    check_output(root, out)?;
+    let reference = read_reference(reference_path)?;
+    let predictor = match landmark_model {
+        Some(path) => {
+            progress(&format!("reading the landmark model {}", path.display()));
+            Some(splineface::landmarker::ShapePredictor::read(path)?)
+        }
+        None => None,
+    };
+    let job = BatchJob {
+        model: predictor.as_ref(),
+        model_identity: file_identity(landmark_model)?,
+        reference: &reference,
+        reference_identity: file_identity(reference_path)?,
+        options,
+        force,
+    };
+    let start = std::time::Instant::now();
+    let total = subjects.len();
+    let bar = {
+        use std::io::IsTerminal;
+        std::io::stderr().is_terminal().then(|| {
+            let bar = indicatif::ProgressBar::new(total as u64);
+            bar.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "[{elapsed}] {bar:30} {pos}/{len} subjects, ETA {eta} {msg}",
+                )
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+            );
+            bar
+        })
+    };
+    let finished = std::sync::atomic::AtomicUsize::new(0);
+    // Subjects in parallel (each one's stages are parallel too; rayon shares the cores).
+    let rows: Vec<_> = subjects
+        .par_iter()
+        .map(|subject| {
+            let row = run_subject(subject, out, &job);
+            let done = finished.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            let line = format!(
+                "{}: {}{} ({:.1} s)",
+                row.subject,
+                row.status.name(),
+                if row.message.is_empty() {
+                    String::new()
+                } else {
+                    format!(": {}", row.message)
+                },
+                row.seconds
+            );
+            match &bar {
+                Some(bar) => {
+                    bar.println(line);
+                    bar.inc(1);
+                }
+                None => {
+                    let elapsed = start.elapsed().as_secs_f64();
+                    let eta = elapsed / done as f64 * (total - done) as f64;
+                    eprintln!("splineface: [{done}/{total}, ETA {eta:.0} s] {line}");
+                }
+            }
+            row
+        })
+        .collect();
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    write_summary(out, &rows)?;
+    let count = |s: Status| rows.iter().filter(|r| r.status == s).count();
+    let (done, unchanged, failed) = (
+        count(Status::Done),
+        count(Status::Unchanged),
+        count(Status::Failed),
+    );
+    let seconds = start.elapsed().as_secs_f64();
+    println!("{}", out.display());
+    println!("  subjects   {total}: {done} done, {unchanged} unchanged, {failed} failed");
+    println!(
+        "  time       {seconds:.1} s ({:.1} subjects a minute)",
+        if seconds > 0.0 {
+            60.0 * (done + failed) as f64 / seconds
+        } else {
+            0.0
+        }
+    );
+    println!("  summary    {}", out.join("summary.csv").display());
+    if failed > 0 {
+        bail!(
+            "{failed} of {total} subjects failed (see {}):{}",
+            out.join("summary.csv").display(),
+            rows.iter()
+                .filter(|r| r.status == Status::Failed)
+                .map(|r| format!("\n  {}: {}", r.subject, r.message))
+                .collect::<String>()
+        );
     }
     Ok(())
 }

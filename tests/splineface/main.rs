@@ -5,6 +5,7 @@
 
 mod align;
 mod bad_inputs;
+mod batch;
 mod bspline_basis;
 mod bspline_fit;
 mod bspline_knots;
