@@ -466,6 +466,8 @@ impl Face {
 #[pyclass(frozen, module = "splineface")]
 struct Landmarker {
     model: Arc<ShapePredictor>,
+    /// The model file's length and hash, for a batch's fingerprints.
+    identity: String,
 }
 
 /// An 8-bit image from numpy: `(h, w)` grey or `(h, w, 3)` RGB, uint8.
@@ -504,12 +506,17 @@ impl Landmarker {
     /// compact form of `splineface compact-model`).
     #[new]
     fn new(py: Python<'_>, model_path: PathBuf) -> PyResult<Self> {
-        let model = py
-            .detach(|| ShapePredictor::read(&model_path))
-            .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
-        Ok(Landmarker {
-            model: Arc::new(model),
+        py.detach(|| -> Result<Self, String> {
+            let bytes = splineface::io::read_input(&model_path, splineface::io::MAX_LARGE_INPUT_BYTES)
+                .map_err(|e| format!("cannot read {}: {e}", model_path.display()))?;
+            let identity = format!("{} {}", bytes.len(), splineface::reference::fnv1a64(&bytes));
+            let model = ShapePredictor::read(&model_path).map_err(|e| e.to_string())?;
+            Ok(Landmarker {
+                model: Arc::new(model),
+                identity,
+            })
         })
+        .map_err(SplinefaceError::new_err)
     }
 
     /// Every face in `image` (uint8 `(h, w)` or `(h, w, 3)` RGB), largest first, each with its
@@ -691,22 +698,42 @@ impl Reconstruction {
     }
 }
 
+/// A reference face file (or the embedded one) and its identity for a batch's fingerprints.
+fn read_reference(path: Option<&std::path::Path>) -> PyResult<(ReferenceFace, String)> {
+    let Some(path) = path else {
+        return Ok((ReferenceFace::embedded().clone(), "none".to_owned()));
+    };
+    let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
+        .map_err(|e| SplinefaceError::new_err(format!("cannot read {}: {e}", path.display())))?;
+    let reference = ReferenceFace::from_json(&text).map_err(|e| {
+        SplinefaceError::new_err(format!("{} is not a valid reference face: {e}", path.display()))
+    })?;
+    let identity = format!(
+        "{} {}",
+        text.len(),
+        splineface::reference::fnv1a64(text.as_bytes())
+    );
+    Ok((reference, identity))
+}
+
 /// Where `reconstruct`'s landmarks come from: a model path or a loaded `Landmarker`.
-fn model_of(value: Option<&Bound<'_, PyAny>>, py: Python<'_>) -> PyResult<Option<Arc<ShapePredictor>>> {
+fn model_of(
+    value: Option<&Bound<'_, PyAny>>,
+    py: Python<'_>,
+) -> PyResult<Option<(Arc<ShapePredictor>, String)>> {
     let Some(value) = value else { return Ok(None) };
     if value.is_none() {
         return Ok(None);
     }
     if let Ok(landmarker) = value.cast::<Landmarker>() {
-        return Ok(Some(landmarker.get().model.clone()));
+        let l = landmarker.get();
+        return Ok(Some((l.model.clone(), l.identity.clone())));
     }
     let path: PathBuf = value
         .extract()
         .map_err(|_| PyTypeError::new_err("landmark_model: a path or a splineface.Landmarker"))?;
-    let model = py
-        .detach(|| ShapePredictor::read(&path))
-        .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
-    Ok(Some(Arc::new(model)))
+    let landmarker = Landmarker::new(py, path)?;
+    Ok(Some((landmarker.model, landmarker.identity)))
 }
 
 /// The photo paths of `photos`: a folder, one path, or a sequence of paths.
@@ -790,18 +817,9 @@ fn reconstruct(
         )));
     }
     let model_start = std::time::Instant::now();
-    let model = model_of(landmark_model, py)?;
+    let model = model_of(landmark_model, py)?.map(|(model, _)| model);
     let model_seconds = model.as_ref().map(|_| model_start.elapsed().as_secs_f64());
-    let reference = match reference {
-        Some(path) => {
-            let text = splineface::io::read_input_text(&path, splineface::io::MAX_DATA_INPUT_BYTES)
-                .map_err(|e| SplinefaceError::new_err(format!("cannot read {}: {e}", path.display())))?;
-            ReferenceFace::from_json(&text).map_err(|e| {
-                SplinefaceError::new_err(format!("{} is not a valid reference face: {e}", path.display()))
-            })?
-        }
-        None => ReferenceFace::embedded().clone(),
-    };
+    let (reference, _) = read_reference(reference.as_deref())?;
     let error = |e: &dyn std::fmt::Display| SplinefaceError::new_err(e.to_string());
     type Built = (
         PhotoSet,
@@ -898,6 +916,127 @@ fn write_demo_photos(
         .collect())
 }
 
+/// A batch row as a dict (the `summary.jsonl` form).
+fn row_to_python<'py>(py: Python<'py>, row: &splineface::batch::SubjectRow) -> PyResult<Bound<'py, PyAny>> {
+    let text = serde_json::to_string(row).map_err(|e| SplinefaceError::new_err(e.to_string()))?;
+    py.import("json")?.call_method1("loads", (text,))
+}
+
+/// Reconstructs one subject of a batch, as `splineface batch` does: the photos and/or landmark
+/// files in `folder` to `out/NAME` (`NAME` the folder's name), skipped when its outputs are up
+/// to date. Returns the subject's summary row (a dict); a failure is a row with status
+/// `failed` and its message, never an exception. The keywords are `reconstruct`'s.
+#[pyfunction]
+#[pyo3(signature = (
+    folder, out, landmark_model = None, reference = None, *, force = false,
+    units = "mm".to_owned(), eye_distance = 63.0, shape = "space".to_owned(),
+    space_noise = splineface::pipeline::Shape::DEFAULT_NOISE,
+    expression_sigma = splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA,
+    expressions = true, refine = true, deformation = "local".to_owned(), spacing = 1.0,
+    depth_size = 512, texture_size = 1024, min_photos = splineface::pipeline::MIN_PHOTOS,
+))]
+#[allow(clippy::too_many_arguments)]
+fn reconstruct_subject<'py>(
+    py: Python<'py>,
+    folder: PathBuf,
+    out: PathBuf,
+    landmark_model: Option<&Bound<'py, PyAny>>,
+    reference: Option<PathBuf>,
+    force: bool,
+    units: String,
+    eye_distance: f64,
+    shape: String,
+    space_noise: f64,
+    expression_sigma: f64,
+    expressions: bool,
+    refine: bool,
+    deformation: String,
+    spacing: f64,
+    depth_size: usize,
+    texture_size: u32,
+    min_photos: usize,
+) -> PyResult<Bound<'py, PyAny>> {
+    let settings = Settings {
+        units,
+        eye_distance,
+        shape,
+        space_noise,
+        expression_sigma,
+        expressions,
+        refine,
+        deformation,
+        spacing,
+        depth_size,
+        texture_size,
+        min_photos,
+    };
+    let options = settings
+        .options()
+        .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))?;
+    let Some(name) = folder.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Err(SplinefaceError::new_err(format!(
+            "{}: not a subject folder",
+            folder.display()
+        )));
+    };
+    if !folder.is_dir() {
+        return Err(SplinefaceError::new_err(format!(
+            "{}: not a folder",
+            folder.display()
+        )));
+    }
+    let (model, model_identity) = match model_of(landmark_model, py)? {
+        Some((model, identity)) => (Some(model), identity),
+        None => (None, "none".to_owned()),
+    };
+    let (reference, reference_identity) = read_reference(reference.as_deref())?;
+    let subject = splineface::batch::Subject { name, folder };
+    let row = py.detach(|| {
+        let job = splineface::batch::BatchJob {
+            model: model.as_deref(),
+            model_identity,
+            reference: &reference,
+            reference_identity,
+            options,
+            force,
+        };
+        splineface::batch::run_subject(&subject, &out, &job)
+    });
+    row_to_python(py, &row)
+}
+
+/// The subject folders of a batch root (its sub-folders, by name), checked as `splineface
+/// batch` checks them: `root` must hold some, and `out`, when given, must lie outside `root`
+/// and be writable.
+#[pyfunction]
+#[pyo3(signature = (root, out = None))]
+fn batch_subjects(root: PathBuf, out: Option<PathBuf>) -> PyResult<Vec<PathBuf>> {
+    let error = |e: splineface::batch::BatchError| SplinefaceError::new_err(e.to_string());
+    let subjects = splineface::batch::subjects(&root).map_err(error)?;
+    if let Some(out) = out {
+        splineface::batch::check_output(&root, &out).map_err(error)?;
+    }
+    Ok(subjects.into_iter().map(|s| s.folder).collect())
+}
+
+/// Writes `summary.csv` and `summary.jsonl` into `out` from rows (the dicts
+/// `reconstruct_subject` returns, in any order: sorted by subject), as `splineface batch`
+/// writes them.
+#[pyfunction]
+fn write_summary(py: Python<'_>, out: PathBuf, rows: &Bound<'_, PyList>) -> PyResult<()> {
+    let json = py.import("json")?;
+    let mut parsed = Vec::with_capacity(rows.len());
+    for (k, row) in rows.iter().enumerate() {
+        let text: String = json.call_method1("dumps", (row,))?.extract()?;
+        let row: splineface::batch::SubjectRow = serde_json::from_str(&text)
+            .map_err(|e| PyValueError::new_err(format!("rows[{k}]: not a subject row: {e}")))?;
+        parsed.push(row);
+    }
+    parsed.sort_by(|a, b| a.subject.cmp(&b.subject));
+    py.detach(|| splineface::batch::write_summary(&out, &parsed))
+        .map_err(|e| SplinefaceError::new_err(e.to_string()))
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SplinefaceError", m.py().get_type::<SplinefaceError>())?;
@@ -907,6 +1046,9 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Reconstruction>()?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(write_demo_photos, m)?)?;
+    m.add_function(wrap_pyfunction!(reconstruct_subject, m)?)?;
+    m.add_function(wrap_pyfunction!(write_summary, m)?)?;
+    m.add_function(wrap_pyfunction!(batch_subjects, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

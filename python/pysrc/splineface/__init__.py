@@ -25,6 +25,13 @@ The kernel::
     surface = splineface.BSplineSurface.fit(points, params, shape=(16, 16))
     surface.eval(params), surface.eval_grid(us, vs), surface.derivatives(params, 2), surface.normal(params)
 
+Many subjects (one folder each), as ``splineface batch`` does, on any executor (a Dask cluster:
+``examples/dask_batch.py`` in the repository's ``python/`` folder)::
+
+    rows = [splineface.reconstruct_subject(folder, "out/", landmark_model=marker)
+            for folder in splineface.batch_subjects("subjects/", "out/")]
+    splineface.write_summary("out/", rows)
+
 Arrays are numpy, float64 (uint8 for images) and C-contiguous; other arrays raise ``TypeError``
 or ``ValueError`` naming the argument. Reconstructions, models and files that cannot be used
 raise ``SplinefaceError`` with the message the command line gives.
@@ -37,8 +44,11 @@ from ._native import (
     Reconstruction,
     SplinefaceError,
     __version__,
+    batch_subjects,
     reconstruct,
+    reconstruct_subject,
     write_demo_photos,
+    write_summary,
 )
 
 __all__ = [
@@ -48,6 +58,9 @@ __all__ = [
     "Reconstruction",
     "SplinefaceError",
     "__version__",
+    "batch_subjects",
     "reconstruct",
+    "reconstruct_subject",
     "write_demo_photos",
+    "write_summary",
 ]

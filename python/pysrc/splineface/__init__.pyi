@@ -147,3 +147,32 @@ def reconstruct(
 def write_demo_photos(directory: _Path, photos: int = 12, noise: float = 1.0, seed: int = 2016) -> List[str]:
     """Writes rendered photos of the embedded demo subject and their landmark files into
     directory (inputs that need no landmark model); returns the files' names."""
+
+def batch_subjects(root: _Path, out: Optional[_Path] = None) -> List[str]:
+    """The subject folders of root (its sub-folders); out, if given, must lie outside root."""
+
+def reconstruct_subject(
+    folder: _Path,
+    out: _Path,
+    landmark_model: Union[_Path, Landmarker, None] = None,
+    reference: Optional[_Path] = None,
+    *,
+    force: bool = False,
+    units: str = "mm",
+    eye_distance: float = 63.0,
+    shape: str = "space",
+    space_noise: float = 4.0,
+    expression_sigma: float = 0.5,
+    expressions: bool = True,
+    refine: bool = True,
+    deformation: str = "local",
+    spacing: float = 1.0,
+    depth_size: int = 512,
+    texture_size: int = 1024,
+    min_photos: int = 2,
+) -> Dict[str, Any]:
+    """One subject of a batch into out/NAME (skipped when up to date); its summary row. A
+    failure is a row with status "failed", never an exception."""
+
+def write_summary(out: _Path, rows: List[Dict[str, Any]]) -> None:
+    """summary.csv and summary.jsonl of reconstruct_subject's rows, as splineface batch writes them."""
