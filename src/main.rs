@@ -107,17 +107,11 @@ enum Command {
         /// A directory of landmark files, one per photo, named like the photo.
         #[arg(long)]
         landmarks: Option<PathBuf>,
-        /// A reference face file (default: the embedded ICT mean face).
-        #[arg(long)]
-        reference: Option<PathBuf>,
-        /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
-        /// downloads it) for photos without a landmark file: faces are then detected and
-        /// landmarked. Default: $SPLINEFACE_LANDMARK_MODEL.
-        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
-        landmark_model: Option<PathBuf>,
         /// The directory to write into (created if missing).
         #[arg(long)]
         out: PathBuf,
+        #[command(flatten)]
+        face: FaceArgs,
         #[command(flatten)]
         output: OutputArgs,
     },
@@ -130,19 +124,14 @@ enum Command {
     Batch {
         /// The folder of subject folders.
         root: PathBuf,
-        /// A reference face file (default: the embedded ICT mean face).
-        #[arg(long)]
-        reference: Option<PathBuf>,
-        /// dlib's 68-point model for photos without a landmark file. Default:
-        /// $SPLINEFACE_LANDMARK_MODEL.
-        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
-        landmark_model: Option<PathBuf>,
         /// The directory to write into (created if missing; not inside ROOT).
         #[arg(long)]
         out: PathBuf,
         /// Reconstruct every subject, even those whose outputs are up to date.
         #[arg(long)]
         force: bool,
+        #[command(flatten)]
+        face: FaceArgs,
         #[command(flatten)]
         output: OutputArgs,
     },
@@ -250,7 +239,20 @@ enum Command {
     },
 }
 
-/// Output options shared by `reconstruct` and `demo`.
+/// Where the face's landmarks and reference come from (`reconstruct`, `batch`).
+#[derive(clap::Args)]
+struct FaceArgs {
+    /// A reference face file (default: the embedded ICT mean face).
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
+    /// downloads it) for photos without a landmark file: faces are then detected and
+    /// landmarked. Default: $SPLINEFACE_LANDMARK_MODEL.
+    #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
+    landmark_model: Option<PathBuf>,
+}
+
+/// Output options shared by `reconstruct`, `batch` and `demo`.
 #[derive(clap::Args)]
 struct OutputArgs {
     /// Output units: `mm` or `canonical` (the paper's: 50 between the eye centres).
@@ -392,30 +394,28 @@ fn run(cli: Cli) -> Result<()> {
             photos,
             photo_dir,
             landmarks,
-            reference,
-            landmark_model,
             out,
+            face,
             output,
         } => reconstruct_command(
             &photos,
             photo_dir.as_deref(),
             landmarks.as_deref(),
-            reference.as_deref(),
-            landmark_model.as_deref(),
+            face.reference.as_deref(),
+            face.landmark_model.as_deref(),
             &out,
             &output,
         ),
         Command::Batch {
             root,
-            reference,
-            landmark_model,
             out,
             force,
+            face,
             output,
         } => batch_command(
             &root,
-            reference.as_deref(),
-            landmark_model.as_deref(),
+            face.reference.as_deref(),
+            face.landmark_model.as_deref(),
             &out,
             force,
             &output,

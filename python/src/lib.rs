@@ -716,6 +716,48 @@ fn read_reference(path: Option<&std::path::Path>) -> PyResult<(ReferenceFace, St
     Ok((reference, identity))
 }
 
+/// The pipeline's options from `reconstruct`'s keyword settings (those of
+/// [`splineface::pipeline::Settings`], the command line's flags), unknown keywords refused.
+fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipeline::PipelineOptions> {
+    let mut s = Settings::default();
+    for (key, value) in settings.into_iter().flat_map(|d| d.iter()) {
+        let key: String = key.extract()?;
+        let wrong = |what: &str| PyTypeError::new_err(format!("{key}: expected {what}"));
+        let text = |v: &Bound<'_, PyAny>| v.extract::<String>().map_err(|_| wrong("a string"));
+        let number = |v: &Bound<'_, PyAny>| v.extract::<f64>().map_err(|_| wrong("a number"));
+        let flag = |v: &Bound<'_, PyAny>| v.extract::<bool>().map_err(|_| wrong("True or False"));
+        let count = |v: &Bound<'_, PyAny>| {
+            v.extract::<usize>()
+                .map_err(|_| wrong("a whole number, 0 or more"))
+        };
+        match key.as_str() {
+            "units" => s.units = text(&value)?,
+            "eye_distance" => s.eye_distance = number(&value)?,
+            "shape" => s.shape = text(&value)?,
+            "space_noise" => s.space_noise = number(&value)?,
+            "expression_sigma" => s.expression_sigma = number(&value)?,
+            "expressions" => s.expressions = flag(&value)?,
+            "refine" => s.refine = flag(&value)?,
+            "deformation" => s.deformation = text(&value)?,
+            "spacing" => s.spacing = number(&value)?,
+            "depth_size" => s.depth_size = count(&value)?,
+            "texture_size" => {
+                s.texture_size = u32::try_from(count(&value)?).map_err(|_| wrong("at most 8192"))?;
+            }
+            "min_photos" => s.min_photos = count(&value)?,
+            _ => {
+                return Err(PyTypeError::new_err(format!(
+                    "unexpected keyword argument '{key}' (the settings are units, eye_distance, shape, \
+                     space_noise, expression_sigma, expressions, refine, deformation, spacing, depth_size, \
+                     texture_size, min_photos)"
+                )));
+            }
+        }
+    }
+    s.options()
+        .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))
+}
+
 /// Where `reconstruct`'s landmarks come from: a model path or a loaded `Landmarker`.
 fn model_of(
     value: Option<&Bound<'_, PyAny>>,
@@ -761,15 +803,7 @@ fn photo_paths(photos: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<PathBuf>> {
 
 /// Reconstructs a face, as `splineface reconstruct` does: see the package's documentation.
 #[pyfunction]
-#[pyo3(signature = (
-    photos = None, landmarks = None, landmark_model = None, reference = None, *,
-    expression_of = None, units = "mm".to_owned(), eye_distance = 63.0, shape = "space".to_owned(),
-    space_noise = splineface::pipeline::Shape::DEFAULT_NOISE,
-    expression_sigma = splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA,
-    expressions = true, refine = true, deformation = "local".to_owned(), spacing = 1.0,
-    depth_size = 512, texture_size = 1024, min_photos = splineface::pipeline::MIN_PHOTOS,
-))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (photos = None, landmarks = None, landmark_model = None, reference = None, *, expression_of = None, **settings))]
 fn reconstruct(
     py: Python<'_>,
     photos: Option<&Bound<'_, PyAny>>,
@@ -777,36 +811,9 @@ fn reconstruct(
     landmark_model: Option<&Bound<'_, PyAny>>,
     reference: Option<PathBuf>,
     expression_of: Option<String>,
-    units: String,
-    eye_distance: f64,
-    shape: String,
-    space_noise: f64,
-    expression_sigma: f64,
-    expressions: bool,
-    refine: bool,
-    deformation: String,
-    spacing: f64,
-    depth_size: usize,
-    texture_size: u32,
-    min_photos: usize,
+    settings: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<Reconstruction> {
-    let settings = Settings {
-        units,
-        eye_distance,
-        shape,
-        space_noise,
-        expression_sigma,
-        expressions,
-        refine,
-        deformation,
-        spacing,
-        depth_size,
-        texture_size,
-        min_photos,
-    };
-    let mut options = settings
-        .options()
-        .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))?;
+    let mut options = options_of(settings)?;
     let photos = photo_paths(photos)?;
     if let Some(dir) = &landmarks
         && !dir.is_dir()
@@ -927,15 +934,7 @@ fn row_to_python<'py>(py: Python<'py>, row: &splineface::batch::SubjectRow) -> P
 /// to date. Returns the subject's summary row (a dict); a failure is a row with status
 /// `failed` and its message, never an exception. The keywords are `reconstruct`'s.
 #[pyfunction]
-#[pyo3(signature = (
-    folder, out, landmark_model = None, reference = None, *, force = false,
-    units = "mm".to_owned(), eye_distance = 63.0, shape = "space".to_owned(),
-    space_noise = splineface::pipeline::Shape::DEFAULT_NOISE,
-    expression_sigma = splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA,
-    expressions = true, refine = true, deformation = "local".to_owned(), spacing = 1.0,
-    depth_size = 512, texture_size = 1024, min_photos = splineface::pipeline::MIN_PHOTOS,
-))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (folder, out, landmark_model = None, reference = None, *, force = false, **settings))]
 fn reconstruct_subject<'py>(
     py: Python<'py>,
     folder: PathBuf,
@@ -943,36 +942,9 @@ fn reconstruct_subject<'py>(
     landmark_model: Option<&Bound<'py, PyAny>>,
     reference: Option<PathBuf>,
     force: bool,
-    units: String,
-    eye_distance: f64,
-    shape: String,
-    space_noise: f64,
-    expression_sigma: f64,
-    expressions: bool,
-    refine: bool,
-    deformation: String,
-    spacing: f64,
-    depth_size: usize,
-    texture_size: u32,
-    min_photos: usize,
+    settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let settings = Settings {
-        units,
-        eye_distance,
-        shape,
-        space_noise,
-        expression_sigma,
-        expressions,
-        refine,
-        deformation,
-        spacing,
-        depth_size,
-        texture_size,
-        min_photos,
-    };
-    let options = settings
-        .options()
-        .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))?;
+    let options = options_of(settings)?;
     let Some(name) = folder.file_name().map(|n| n.to_string_lossy().into_owned()) else {
         return Err(SplinefaceError::new_err(format!(
             "{}: not a subject folder",

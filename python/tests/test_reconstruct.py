@@ -156,3 +156,14 @@ def test_reconstruct_takes_a_loaded_landmarker(landmarker, lps_photos):
     assert len(face.photos_used) >= 2
     assert [p["name"] for p in face.poses] == face.photos_used
     assert any(t["stage"] == "photos: decoding, detection, landmarks (in parallel)" for t in face.report["timings"])
+
+
+def test_unknown_and_mistyped_settings_are_refused(demo_photos):
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+        splineface.reconstruct(landmarks=demo_photos, colour=True)
+    with pytest.raises(TypeError, match="refine: expected True or False"):
+        splineface.reconstruct(landmarks=demo_photos, refine="yes")
+    with pytest.raises(TypeError, match="min_photos: expected a whole number"):
+        splineface.reconstruct(landmarks=demo_photos, min_photos=-2)
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+        splineface.reconstruct_subject(demo_photos, demo_photos.parent / "out", colour=True)

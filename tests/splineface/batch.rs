@@ -1,28 +1,10 @@
 //! `splineface batch`: subjects in folders, their outputs as `reconstruct` writes them, the
 //! summary, resuming, failed subjects and bad roots.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use super::common::{s, scratch, splineface};
+use std::path::Path;
 
 use splineface::demo::{SceneOptions, scene};
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("splineface-batch-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn splineface(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_splineface"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> String {
-    p.to_str().unwrap().to_owned()
-}
 
 /// A subject folder: `photos` rendered photos of the demo subject with their landmark files.
 fn subject_folder(folder: &Path, photos: usize, seed: u64) {
@@ -53,7 +35,7 @@ fn summary(out: &Path) -> Vec<(String, String, String)> {
 
 #[test]
 fn a_batch_reconstructs_each_subject_resumes_and_reports_failures() {
-    let dir = scratch("run");
+    let dir = scratch("batch", "run");
     let root = dir.join("subjects");
     subject_folder(&root.join("alice"), 4, 1);
     subject_folder(&root.join("bob"), 3, 2);
@@ -168,7 +150,7 @@ fn a_batch_reconstructs_each_subject_resumes_and_reports_failures() {
 
 #[test]
 fn a_batch_refuses_bad_roots_and_outputs() {
-    let dir = scratch("bad");
+    let dir = scratch("batch", "bad");
     let root = dir.join("subjects");
     std::fs::create_dir_all(&root).unwrap();
     std::fs::write(root.join("loose.png"), b"not a subject").unwrap();

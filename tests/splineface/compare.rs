@@ -1,8 +1,8 @@
 //! Comparing reconstructions with the truth: alignment recovered, known errors measured, the
 //! `compare` and `render-depth` commands.
 
+use super::common::{scratch, splineface};
 use std::path::PathBuf;
-use std::process::Command;
 
 use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
 use splineface::Real;
@@ -165,20 +165,6 @@ fn bad_comparisons_are_errors() {
     }
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("splineface-compare-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn splineface(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_splineface"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
 fn landmarks_json(points: &[Point3<Real>]) -> String {
     let points: Vec<Vec<Real>> = points.iter().map(|p| vec![p.x, p.y, p.z]).collect();
     serde_json::json!({ "format": "splineface/landmarks", "version": 1, "scheme": "structure40", "points": points })
@@ -187,7 +173,7 @@ fn landmarks_json(points: &[Point3<Real>]) -> String {
 
 #[test]
 fn the_commands_write_their_files_and_refuse_bad_input() {
-    let dir = scratch("cli");
+    let dir = scratch("compare", "cli");
     let (mesh, structure) = truth();
     let truth_path = dir.join("truth.ply");
     // The truth in centimetres, the reconstruction in millimetres 1 mm in front.

@@ -3,27 +3,11 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use super::common::{s, scratch, splineface};
+
 use splineface::demo::{SceneOptions, scene, subject};
 use splineface::pipeline::{PipelineOptions, reconstruct};
 use splineface::reference::ReferenceFace;
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("splineface-pipeline-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn splineface(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_splineface"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> String {
-    p.to_str().unwrap().to_owned()
-}
 
 const OUTPUTS: [&str; 11] = [
     "face.obj",
@@ -165,7 +149,7 @@ fn the_library_pipeline_beats_the_mean_face() {
 
 #[test]
 fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
-    let dir = scratch("demo");
+    let dir = scratch("pipeline", "demo");
     let demo = dir.join("demo");
     let run = splineface(&["demo", "--out", &s(&demo), "--photos", "6"]);
     let stdout = String::from_utf8_lossy(&run.stdout);
@@ -356,7 +340,7 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
 
 #[test]
 fn reconstruct_refuses_bad_input() {
-    let dir = scratch("bad");
+    let dir = scratch("pipeline", "bad");
     let photos = dir.join("photos");
     std::fs::create_dir_all(&photos).unwrap();
     let scene = scene(&SceneOptions {
@@ -516,7 +500,7 @@ fn reconstruct_refuses_bad_input() {
 #[ignore = "needs ../shared (dlib's model and photos)"]
 fn reconstruct_detects_and_landmarks_faces() {
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    let dir = scratch("detect");
+    let dir = scratch("pipeline", "detect");
     let photos = dir.join("photos");
     std::fs::create_dir_all(&photos).unwrap();
     let faces = shared.join("data/dlib-faces");
@@ -716,7 +700,7 @@ fn reconstruct_detects_and_landmarks_faces() {
 #[test]
 #[ignore = "needs ../shared (ICT-FaceKit) and builds the eval tool in release"]
 fn the_evaluation_harness_runs() {
-    let dir = scratch("eval");
+    let dir = scratch("pipeline", "eval");
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".to_owned());
     let run = Command::new(cargo)
         .args([
@@ -765,7 +749,7 @@ fn the_evaluation_harness_runs() {
 /// differs only in its timings).
 #[test]
 fn outputs_are_repeatable_across_runs_and_thread_counts() {
-    let dir = scratch("repeat");
+    let dir = scratch("pipeline", "repeat");
     let photos = dir.join("photos");
     std::fs::create_dir_all(&photos).unwrap();
     let scene = scene(&SceneOptions {
@@ -884,7 +868,7 @@ fn outputs_in(dir: &Path) -> (std::collections::BTreeMap<PathBuf, Vec<u8>>, usiz
 /// killed runs left.
 #[test]
 fn a_killed_run_leaves_every_output_whole() {
-    let dir = scratch("killed");
+    let dir = scratch("pipeline", "killed");
     // Two batches of photos: the previous outputs come from one, the new from the other.
     for (name, seed) in [("photos-old", 1), ("photos", 2)] {
         let photos = dir.join(name);
@@ -974,7 +958,7 @@ fn a_killed_run_leaves_every_output_whole() {
 #[ignore = "needs ../shared (dlib's model and photos)"]
 fn landmarks_draws_every_photo_it_can_decode_and_names_the_rest() {
     let shared = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared");
-    let dir = scratch("landmarks-odd");
+    let dir = scratch("pipeline", "landmarks-odd");
     let photos = dir.join("photos");
     std::fs::create_dir_all(&photos).unwrap();
     let tom = image::open(shared.join("data/dlib-faces/Tom_Cruise_avp_2014_4.jpg")).unwrap();

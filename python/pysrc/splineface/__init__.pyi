@@ -3,6 +3,8 @@
 import os
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
+from typing_extensions import TypedDict, Unpack
+
 import numpy as np
 import numpy.typing as npt
 
@@ -10,6 +12,22 @@ __version__: str
 
 _Path = Union[str, "os.PathLike[str]"]
 _Floats = npt.ArrayLike
+
+class Settings(TypedDict, total=False):
+    """reconstruct's settings (the command line's flags; defaults in brackets)."""
+
+    units: str  # "mm" ["mm"] or "canonical"
+    eye_distance: float  # mm between the eye centres, for units="mm" [63]
+    shape: str  # "space" ["space"] or "deformed"
+    space_noise: float  # the face-space fit's landmark noise, canonical units [4]
+    expression_sigma: float  # the prior deviation of each photo's expression [0.5]
+    expressions: bool  # fit an expression per photo [True]
+    refine: bool  # refine with the photos' pixels [True]
+    deformation: str  # "local" ["local"] or "affine", for shape="deformed"
+    spacing: float  # mesh vertex spacing, canonical units, 0.1 to 20 [1]
+    depth_size: int  # the depth map's larger side, pixels [512]
+    texture_size: int  # the texture atlas's side, 16 to 8192 [1024]
+    min_photos: int  # the fewest usable photos [2]
 
 class SplinefaceError(Exception):
     """A reconstruction, model or file that could not be used; the message names it."""
@@ -127,18 +145,7 @@ def reconstruct(
     reference: Optional[_Path] = None,
     *,
     expression_of: Optional[str] = None,
-    units: str = "mm",
-    eye_distance: float = 63.0,
-    shape: str = "space",
-    space_noise: float = 4.0,
-    expression_sigma: float = 0.5,
-    expressions: bool = True,
-    refine: bool = True,
-    deformation: str = "local",
-    spacing: float = 1.0,
-    depth_size: int = 512,
-    texture_size: int = 1024,
-    min_photos: int = 2,
+    **settings: Unpack[Settings],
 ) -> Reconstruction:
     """A face from photos (a folder, a path or paths; landmarks from files in `landmarks`,
     matched by name, or detected with `landmark_model`), or from a folder of landmark files
@@ -158,18 +165,7 @@ def reconstruct_subject(
     reference: Optional[_Path] = None,
     *,
     force: bool = False,
-    units: str = "mm",
-    eye_distance: float = 63.0,
-    shape: str = "space",
-    space_noise: float = 4.0,
-    expression_sigma: float = 0.5,
-    expressions: bool = True,
-    refine: bool = True,
-    deformation: str = "local",
-    spacing: float = 1.0,
-    depth_size: int = 512,
-    texture_size: int = 1024,
-    min_photos: int = 2,
+    **settings: Unpack[Settings],
 ) -> Dict[str, Any]:
     """One subject of a batch into out/NAME (skipped when up to date); its summary row. A
     failure is a row with status "failed", never an exception."""
