@@ -77,7 +77,8 @@ def main():
         x, y, zz = fit_params[:, 0].copy(), fit_params[:, 1].copy(), noisy[:, 2].copy()
         ours_s, fitted = best(args.repeat, lambda: splineface.BSplineSurface.fit(
             noisy, fit_params, shape=(n, n), knots_u=knots, knots_v=knots))
-        theirs_s, lsq = best(args.repeat, lambda: interpolate.LSQBivariateSpline(x, y, zz, inner, inner, kx=p, ky=p))
+        theirs_s, lsq = best(args.repeat, lambda: interpolate.LSQBivariateSpline(
+            x, y, zz, inner, inner, bbox=[0, 1, 0, 1], kx=p, ky=p))
         # The same least-squares problem: the same z coefficients.
         assert np.allclose(fitted.control_points[:, :, 2].ravel(), lsq.get_coeffs(), atol=1e-6)
         row(f"fit 32 × 32 to {samples:,} samples (samples/s)", ours_s, theirs_s, samples, "/s")

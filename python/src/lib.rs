@@ -115,9 +115,24 @@ fn to_numpy<'py, T: Element>(
     Ok(array.into_pyarray(py))
 }
 
-fn points_to_numpy(py: Python<'_>, points: &[Point3<f64>], shape: &[usize]) -> PyResult<Py<PyAny>> {
-    let values: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
-    Ok(to_numpy(py, values, shape)?.into_any().unbind())
+/// Points as a numpy array of `shape` (`…, 3`), their buffer handed over without a copy.
+fn points_to_numpy(py: Python<'_>, points: Vec<Point3<f64>>, shape: &[usize]) -> PyResult<Py<PyAny>> {
+    Ok(to_numpy(py, coordinates(points), shape)?.into_any().unbind())
+}
+
+/// The coordinates of `points`, `x, y, z` after each other, in the same allocation.
+fn coordinates(points: Vec<Point3<f64>>) -> Vec<f64> {
+    const {
+        assert!(std::mem::size_of::<Point3<f64>>() == 3 * std::mem::size_of::<f64>());
+        assert!(std::mem::align_of::<Point3<f64>>() == std::mem::align_of::<f64>());
+    }
+    let mut points = std::mem::ManuallyDrop::new(points);
+    let (pointer, length, capacity) = (points.as_mut_ptr(), points.len(), points.capacity());
+    // SAFETY: `Point3<f64>` is `#[repr(C)]` around nalgebra's `#[repr(C)]` array storage
+    // `[[f64; 3]; 1]`: three `f64`s with `f64`'s alignment and no padding (checked above), so
+    // an allocation of `capacity` points is one of `3 · capacity` floats, allocated with the
+    // same alignment, and its first `3 · length` floats are initialised.
+    unsafe { Vec::from_raw_parts(pointer.cast::<f64>(), 3 * length, 3 * capacity) }
 }
 
 fn kernel_error(error: BSplineError) -> PyErr {
@@ -256,7 +271,8 @@ impl BSplineSurfaceHandle {
         let points = py
             .detach(|| self.surface.eval_many(&params))
             .map_err(kernel_error)?;
-        points_to_numpy(py, &points, &[points.len(), 3])
+        let n = points.len();
+        points_to_numpy(py, points, &[n, 3])
     }
 
     /// The surface on the grid `us × vs` (float64 `(a,)` and `(b,)`): float64 `(a, b, 3)`,
@@ -267,7 +283,7 @@ impl BSplineSurfaceHandle {
         let points = py
             .detach(|| self.surface.eval_grid(&us, &vs))
             .map_err(kernel_error)?;
-        points_to_numpy(py, &points, &[us.len(), vs.len(), 3])
+        points_to_numpy(py, points, &[us.len(), vs.len(), 3])
     }
 
     /// Partial derivatives up to total order `order` at `params` (float64 `(n, 2)`): float64
@@ -325,7 +341,7 @@ impl BSplineSurfaceHandle {
     fn control_points(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
         points_to_numpy(
             py,
-            self.surface.control_points(),
+            self.surface.control_points().to_vec(),
             &[self.surface.rows(), self.surface.cols(), 3],
         )
     }
