@@ -3,7 +3,21 @@
 import os
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
-from typing_extensions import TypedDict, Unpack
+from typing_extensions import TypedDict, Unpack, final
+
+__all__ = [
+    "BSplineSurface",
+    "Face",
+    "Landmarker",
+    "Reconstruction",
+    "SplinefaceError",
+    "__version__",
+    "batch_subjects",
+    "reconstruct",
+    "reconstruct_subject",
+    "write_demo_photos",
+    "write_summary",
+]
 
 import numpy as np
 import numpy.typing as npt
@@ -13,7 +27,7 @@ __version__: str
 _Path = Union[str, "os.PathLike[str]"]
 _Floats = npt.ArrayLike
 
-class Settings(TypedDict, total=False):
+class _Settings(TypedDict, total=False):
     """reconstruct's settings (the command line's flags; defaults in brackets)."""
 
     units: str  # "mm" ["mm"] or "canonical"
@@ -32,17 +46,18 @@ class Settings(TypedDict, total=False):
 class SplinefaceError(Exception):
     """A reconstruction, model or file that could not be used; the message names it."""
 
+@final
 class BSplineSurface:
     """A tensor-product B-spline surface with a (rows, cols) grid of 3D control points."""
 
-    def __init__(
-        self,
+    def __new__(
+        cls,
         control_points: _Floats,
         degree_u: int = 3,
         degree_v: int = 3,
         knots_u: Optional[_Floats] = None,
         knots_v: Optional[_Floats] = None,
-    ) -> None:
+    ) -> "BSplineSurface":
         """control_points: float64 (rows, cols, 3); knots default to clamped uniform over [0, 1]."""
     @staticmethod
     def fit(
@@ -85,6 +100,7 @@ class BSplineSurface:
     @staticmethod
     def from_json(text: str) -> "BSplineSurface": ...
 
+@final
 class Face:
     """A detected face: box (x, y, width, height), score, 68 iBUG points (68, 2)."""
 
@@ -99,15 +115,17 @@ class Face:
     @property
     def points(self) -> npt.NDArray[np.float64]: ...
 
+@final
 class Landmarker:
     """dlib's 68-point model (the .dat or splineface's compact form), loaded once."""
 
-    def __init__(self, model_path: _Path) -> None: ...
+    def __new__(cls, model_path: _Path) -> "Landmarker": ...
     def detect(self, image: npt.NDArray[np.uint8]) -> List[Face]:
         """Every face of a uint8 (h, w) or (h, w, 3) RGB image, largest first."""
     def subject(self, image: npt.NDArray[np.uint8]) -> Face:
         """The portrait's subject, as reconstruct picks it; SplinefaceError if none or ambiguous."""
 
+@final
 class Reconstruction:
     """A finished reconstruction: arrays, report, and every output file."""
 
@@ -145,7 +163,7 @@ def reconstruct(
     reference: Optional[_Path] = None,
     *,
     expression_of: Optional[str] = None,
-    **settings: Unpack[Settings],
+    **settings: Unpack[_Settings],
 ) -> Reconstruction:
     """A face from photos (a folder, a path or paths; landmarks from files in `landmarks`,
     matched by name, or detected with `landmark_model`), or from a folder of landmark files
@@ -165,7 +183,7 @@ def reconstruct_subject(
     reference: Optional[_Path] = None,
     *,
     force: bool = False,
-    **settings: Unpack[Settings],
+    **settings: Unpack[_Settings],
 ) -> Dict[str, Any]:
     """One subject of a batch into out/NAME (skipped when up to date); its summary row. A
     failure is a row with status "failed", never an exception."""
