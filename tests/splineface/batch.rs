@@ -196,3 +196,32 @@ fn a_batch_refuses_bad_roots_and_outputs() {
     assert!(!dir.join("o").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_subject_folder_that_cannot_be_read_is_a_failed_row() {
+    // (A folder without read permission cannot be made unreadable to root, who runs CI; one
+    // that vanished between the listing and its turn fails the same way, at the same call.)
+    let dir = scratch("batch", "unreadable");
+    let subject = splineface::batch::Subject {
+        name: "gone".into(),
+        folder: dir.join("gone"),
+    };
+    let job = splineface::batch::BatchJob {
+        model: None,
+        model_identity: "none".into(),
+        reference: splineface::reference::ReferenceFace::embedded(),
+        reference_identity: "none".into(),
+        options: splineface::pipeline::PipelineOptions::default(),
+        force: false,
+    };
+    let row = splineface::batch::run_subject(&subject, &dir.join("out"), &job);
+    assert_eq!(row.status, splineface::batch::Status::Failed);
+    assert!(
+        row.message.contains("cannot read the directory"),
+        "{}",
+        row.message
+    );
+    assert!(row.message.contains("gone"), "{}", row.message);
+    assert!(!dir.join("out").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
