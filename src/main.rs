@@ -313,7 +313,7 @@ impl OutputArgs {
         };
         splineface::pipeline::photo_index(inputs, name)
             .map(Some)
-            .map_err(|why| anyhow::anyhow!("--expression-of {name}: {why}"))
+            .with_context(|| format!("--expression-of {name}"))
     }
 
     /// The pipeline's options, checked by the library ([`splineface::pipeline::Settings`]).

@@ -871,7 +871,7 @@ fn reconstruct(
         .unwrap_or_default();
     let map = result
         .depth_map()
-        .map_err(|e| SplinefaceError::new_err(format!("depth map: {e}")))?;
+        .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
     let (w, h) = (map.raster.width, map.raster.height);
     // The library's rows run from the bottom; numpy images from the top.
     let depth: Vec<f64> = (0..h)

@@ -856,12 +856,12 @@ impl Reconstruction {
     /// over a raster whose larger side is [`PipelineOptions::depth_map_size`] pixels.
     ///
     /// # Errors
-    /// Why no raster could be framed around the mesh, in words.
-    pub fn depth_map(&self) -> Result<DepthMap, String> {
+    /// [`PipelineError::Encode`] (for `depth.exr`) when no raster can be framed around the mesh.
+    pub fn depth_map(&self) -> Result<DepthMap, PipelineError> {
         self.depth_map_of(&self.output_mesh())
     }
 
-    fn depth_map_of(&self, mesh: &TriangleMesh) -> Result<DepthMap, String> {
+    fn depth_map_of(&self, mesh: &TriangleMesh) -> Result<DepthMap, PipelineError> {
         let size = self.options.depth_map_size;
         let view = View::front();
         let (lo, hi) = mesh.positions().iter().fold(
@@ -877,7 +877,8 @@ impl Reconstruction {
         } else {
             (size, ((size as Real) * aspect).round().max(1.0) as usize)
         };
-        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)?;
+        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)
+            .map_err(encode_error("depth.exr"))?;
         Ok(DepthMap::render(mesh, &view, &raster))
     }
 
@@ -960,7 +961,7 @@ impl Reconstruction {
         files.push(("surface.step".into(), step.into_bytes()));
 
         // The depth map, from the front.
-        let map = self.depth_map_of(&mesh).map_err(encode_error("depth.exr"))?;
+        let map = self.depth_map_of(&mesh)?;
         let exr = encode_depth_exr(&map).map_err(|e| encode_error("depth.exr")(e.to_string()))?;
         let png = encode_depth_png(&map).map_err(|e| encode_error("depth.png")(e.to_string()))?;
         let preview = shaded_png(&map).map_err(|e| encode_error("preview.png")(e.to_string()))?;

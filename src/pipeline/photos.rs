@@ -68,6 +68,14 @@ pub enum InputError {
         /// Why.
         message: String,
     },
+    /// No usable photo has the name asked for.
+    #[error("no usable photo has that name (the photos are {})", photos.join(", "))]
+    NoSuchPhoto {
+        /// The name asked for.
+        name: String,
+        /// The usable photos' names.
+        photos: Vec<String>,
+    },
     /// Fewer usable photos than the reconstruction needs.
     #[error(
         "{usable} usable photo{}, at least {needed} needed{}",
@@ -207,18 +215,15 @@ pub fn landmark_photo(
 /// [`super::PipelineOptions::expression_of`]).
 ///
 /// # Errors
-/// The names of the usable photos, in words, when none has that name.
-pub fn photo_index(inputs: &[Input], name: &str) -> Result<usize, String> {
-    inputs.iter().position(|i| i.points.name == name).ok_or_else(|| {
-        format!(
-            "no usable photo has that name (the photos are {})",
-            inputs
-                .iter()
-                .map(|i| i.points.name.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    })
+/// [`InputError::NoSuchPhoto`], listing the usable photos' names.
+pub fn photo_index(inputs: &[Input], name: &str) -> Result<usize, InputError> {
+    inputs
+        .iter()
+        .position(|i| i.points.name == name)
+        .ok_or_else(|| InputError::NoSuchPhoto {
+            name: name.to_owned(),
+            photos: inputs.iter().map(|i| i.points.name.clone()).collect(),
+        })
 }
 
 /// One photo as read and landmarked: what its overlay and landmark file are made of.
