@@ -41,6 +41,7 @@ mod band;
 mod basis;
 mod fit;
 mod knots;
+mod refine;
 mod space;
 mod surface;
 

@@ -9,6 +9,7 @@ mod batch;
 mod bspline_basis;
 mod bspline_fit;
 mod bspline_knots;
+mod bspline_refine;
 mod bspline_serde;
 mod bspline_space;
 mod bspline_surface;

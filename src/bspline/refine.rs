@@ -1,0 +1,311 @@
+//! Knot insertion and refinement, and what they make possible: clamping, restriction to a
+//! sub-domain, splitting and Bézier extraction (The NURBS Book, §5.2–5.4). Each returns the
+//! same surface over (part of) the same domain with a richer representation; the property tests
+//! check that it evaluates the same to rounding.
+
+use nalgebra::Point3;
+
+use super::{BSplineError, BSplineSurface, Direction, KnotVector};
+use crate::Real;
+
+/// The NURBS Book A5.4 (`RefineKnotVectCurve`): the knot vector `knots` of a degree-`p` curve
+/// with control points `points`, refined by the sorted values `x` (each in the domain): the new
+/// knot vector and control points of the same curve.
+fn refine_curve(
+    knots: &[Real],
+    p: usize,
+    points: &[Point3<Real>],
+    x: &[Real],
+    span: impl Fn(Real) -> usize,
+) -> (Vec<Real>, Vec<Point3<Real>>) {
+    if x.is_empty() {
+        return (knots.to_vec(), points.to_vec());
+    }
+    let n = points.len() - 1;
+    let m = n + p + 1;
+    let r = x.len() - 1;
+    let a = span(x[0]);
+    let b = span(x[r]) + 1;
+    let mut q = vec![Point3::origin(); points.len() + x.len()];
+    let mut u = vec![0.0; knots.len() + x.len()];
+    q[..=a - p].copy_from_slice(&points[..=a - p]);
+    for j in b - 1..=n {
+        q[j + r + 1] = points[j];
+    }
+    u[..=a].copy_from_slice(&knots[..=a]);
+    for j in b + p..=m {
+        u[j + r + 1] = knots[j];
+    }
+    let (mut i, mut k) = (b + p - 1, b + p + r);
+    for j in (0..=r).rev() {
+        while x[j] <= knots[i] && i > a {
+            q[k - p - 1] = points[i - p - 1];
+            u[k] = knots[i];
+            k -= 1;
+            i -= 1;
+        }
+        q[k - p - 1] = q[k - p];
+        for l in 1..=p {
+            let index = k - p + l;
+            let alpha = u[k + l] - x[j];
+            if alpha == 0.0 {
+                q[index - 1] = q[index];
+            } else {
+                let alpha = alpha / (u[k + l] - knots[i - p + l]);
+                q[index - 1] = Point3::from(q[index - 1].coords * alpha + q[index].coords * (1.0 - alpha));
+            }
+        }
+        u[k] = x[j];
+        k -= 1;
+    }
+    (u, q)
+}
+
+/// How many times `value` appears in `knots`.
+fn multiplicity(knots: &[Real], value: Real) -> usize {
+    knots.iter().filter(|&&k| k == value).count()
+}
+
+impl BSplineSurface {
+    fn knots_in(&self, direction: Direction) -> &KnotVector {
+        match direction {
+            Direction::U => self.knots_u(),
+            Direction::V => self.knots_v(),
+        }
+    }
+
+    /// The curves of the grid along `direction` (the columns for `u`, the rows for `v`).
+    fn curves(&self, direction: Direction) -> Vec<Vec<Point3<Real>>> {
+        let (rows, cols, grid) = (self.rows(), self.cols(), self.control_points());
+        match direction {
+            Direction::U => (0..cols)
+                .map(|j| (0..rows).map(|i| grid[i * cols + j]).collect())
+                .collect(),
+            Direction::V => grid.chunks(cols).map(<[_]>::to_vec).collect(),
+        }
+    }
+
+    /// The surface with the curves along `direction` replaced (all of one length) over `knots`.
+    fn with_curves(
+        &self,
+        direction: Direction,
+        knots: KnotVector,
+        curves: &[Vec<Point3<Real>>],
+    ) -> Result<Self, BSplineError> {
+        let length = curves[0].len();
+        match direction {
+            Direction::U => {
+                let cols = curves.len();
+                let grid = (0..length * cols).map(|k| curves[k % cols][k / cols]).collect();
+                BSplineSurface::new(knots, self.knots_v().clone(), length, cols, grid)
+            }
+            Direction::V => {
+                let rows = curves.len();
+                let grid = curves.iter().flatten().copied().collect();
+                BSplineSurface::new(self.knots_u().clone(), knots, rows, length, grid)
+            }
+        }
+    }
+
+    /// The same surface with the knots `values` added along `direction` (The NURBS Book A5.5,
+    /// refinement of a surface's knot vector, done by A5.4 on each row or column). `values`
+    /// need not be sorted and may repeat; each must lie in the domain, and no knot may end up
+    /// more than `degree` times (a surface stays continuous).
+    ///
+    /// # Errors
+    /// [`BSplineError::ParameterOutOfDomain`] for a value outside the domain (or NaN),
+    /// [`BSplineError::KnotMultiplicityTooHigh`] for a knot that would appear more than
+    /// `degree` times.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// let finer = surface.refine_knots(Direction::U, &[0.2, 0.7, 0.7])?;
+    /// assert_eq!(finer.rows(), 8);
+    /// let (a, b) = (surface.eval(0.3, 0.6)?, finer.eval(0.3, 0.6)?);
+    /// assert!((a - b).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn refine_knots(&self, direction: Direction, values: &[Real]) -> Result<Self, BSplineError> {
+        let knots = self.knots_in(direction);
+        let (start, end) = knots.domain();
+        if let Some(&value) = values.iter().find(|&&x| !(x >= start && x <= end)) {
+            return Err(BSplineError::ParameterOutOfDomain {
+                direction,
+                value,
+                start,
+                end,
+            });
+        }
+        let mut x = values.to_vec();
+        x.sort_by(Real::total_cmp);
+        let p = knots.degree();
+        for run in x.chunk_by(|a, b| a == b) {
+            let total = multiplicity(knots.knots(), run[0]) + run.len();
+            if total > p {
+                return Err(BSplineError::KnotMultiplicityTooHigh {
+                    value: run[0],
+                    multiplicity: total,
+                    max: p,
+                });
+            }
+        }
+        if x.is_empty() {
+            return Ok(self.clone());
+        }
+        let span = |u: Real| knots.span_in_domain(u);
+        let mut refined_knots = Vec::new();
+        let curves: Vec<Vec<Point3<Real>>> = self
+            .curves(direction)
+            .iter()
+            .map(|curve| {
+                let (u, q) = refine_curve(knots.knots(), p, curve, &x, span);
+                refined_knots = u;
+                q
+            })
+            .collect();
+        self.with_curves(direction, KnotVector::new(p, refined_knots)?, &curves)
+    }
+
+    /// The same surface with the knot `value` inserted `times` times along `direction` (The
+    /// NURBS Book A5.3; see [`BSplineSurface::refine_knots`] for the limits).
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::refine_knots`].
+    pub fn insert_knot(&self, direction: Direction, value: Real, times: usize) -> Result<Self, BSplineError> {
+        self.refine_knots(direction, &vec![value; times])
+    }
+
+    /// The part of the surface over `[lo, hi]` along `direction` (the other direction whole),
+    /// as a surface of its own with clamped knots there: `lo` and `hi` are inserted until they
+    /// appear `degree` times (A5.4), and the knots and control points outside are dropped.
+    ///
+    /// # Errors
+    /// [`BSplineError::ParameterOutOfDomain`] unless `start ≤ lo < hi ≤ end` of the domain
+    /// ([`BSplineError::EmptyDomain`] when `lo ≥ hi`).
+    pub fn restricted(&self, direction: Direction, lo: Real, hi: Real) -> Result<Self, BSplineError> {
+        let knots = self.knots_in(direction);
+        let (start, end) = knots.domain();
+        for value in [lo, hi] {
+            if !(value >= start && value <= end) {
+                return Err(BSplineError::ParameterOutOfDomain {
+                    direction,
+                    value,
+                    start,
+                    end,
+                });
+            }
+        }
+        if lo >= hi {
+            return Err(BSplineError::EmptyDomain { start: lo, end: hi });
+        }
+        let p = knots.degree();
+        let missing = |v: Real| p.saturating_sub(multiplicity(knots.knots(), v));
+        let inserts: Vec<Real> = std::iter::repeat_n(lo, missing(lo))
+            .chain(std::iter::repeat_n(hi, missing(hi)))
+            .collect();
+        let refined = self.refine_knots(direction, &inserts)?;
+        let u = refined.knots_in(direction).knots();
+        // `lo` occupies u[s..s + m]: the first basis function alive on [lo, lo + ε) is
+        // N_{s+m−1−p}; `hi` starts at u[e], the last one alive on (hi − ε, hi] is N_{e−1}.
+        let s = u.partition_point(|&k| k < lo);
+        let m = multiplicity(u, lo);
+        let e = u.partition_point(|&k| k < hi);
+        let first = s + m - 1 - p;
+        let mut clamped = vec![lo; p + 1];
+        clamped.extend_from_slice(&u[s + m..e]);
+        clamped.extend(std::iter::repeat_n(hi, p + 1));
+        let curves: Vec<Vec<Point3<Real>>> = refined
+            .curves(direction)
+            .into_iter()
+            .map(|c| c[first..e].to_vec())
+            .collect();
+        refined.with_curves(direction, KnotVector::new(p, clamped)?, &curves)
+    }
+
+    /// The same surface over the same domain with clamped knot vectors in both directions (the
+    /// first and last knots repeated `degree + 1` times), which many file formats and CAD
+    /// systems expect. A clamped surface comes back unchanged.
+    ///
+    /// # Errors
+    /// None in practice (the domain is valid); as [`BSplineSurface::restricted`].
+    pub fn clamped(&self) -> Result<Self, BSplineError> {
+        let mut surface = self.clone();
+        for direction in [Direction::U, Direction::V] {
+            let knots = surface.knots_in(direction);
+            if !knots.is_clamped() {
+                let (start, end) = knots.domain();
+                surface = surface.restricted(direction, start, end)?;
+            }
+        }
+        Ok(surface)
+    }
+
+    /// The surface split at `at` along `direction` into the parts below and above it, each
+    /// clamped ([`BSplineSurface::restricted`]).
+    ///
+    /// # Errors
+    /// [`BSplineError::ParameterOutOfDomain`] unless `at` lies strictly inside the domain.
+    pub fn split(&self, direction: Direction, at: Real) -> Result<(Self, Self), BSplineError> {
+        let (start, end) = self.knots_in(direction).domain();
+        if !(at > start && at < end) {
+            return Err(BSplineError::ParameterOutOfDomain {
+                direction,
+                value: at,
+                start,
+                end,
+            });
+        }
+        Ok((
+            self.restricted(direction, start, at)?,
+            self.restricted(direction, at, end)?,
+        ))
+    }
+
+    /// The surface as Bézier patches, one per non-empty knot span pair (The NURBS Book A5.7 in
+    /// effect: every interior knot raised to multiplicity `degree`, then the grid cut), each a
+    /// surface with knots `[a, …, a, b, …, b]` over its span. Row-major: the patch of `u` span
+    /// `i` and `v` span `j` is at `i · (v spans) + j`.
+    ///
+    /// # Errors
+    /// None in practice; as [`BSplineSurface::restricted`].
+    pub fn bezier_patches(&self) -> Result<Vec<BSplineSurface>, BSplineError> {
+        let breaks = |knots: &KnotVector| -> Vec<Real> {
+            let (start, end) = knots.domain();
+            let mut values: Vec<Real> = knots
+                .knots()
+                .iter()
+                .copied()
+                .filter(|&k| k >= start && k <= end)
+                .collect();
+            values.dedup();
+            values
+        };
+        let (us, vs) = (breaks(self.knots_u()), breaks(self.knots_v()));
+        // Every break at multiplicity `degree` once, so that each patch below is a slice.
+        let mut full = self.clone();
+        for (direction, values) in [(Direction::U, &us), (Direction::V, &vs)] {
+            let knots = full.knots_in(direction);
+            let p = knots.degree();
+            let inserts: Vec<Real> = values
+                .iter()
+                .flat_map(|&v| std::iter::repeat_n(v, p.saturating_sub(multiplicity(knots.knots(), v))))
+                .collect();
+            full = full.refine_knots(direction, &inserts)?;
+        }
+        let mut patches = Vec::with_capacity((us.len() - 1) * (vs.len() - 1));
+        for u in us.windows(2) {
+            let strip = full.restricted(Direction::U, u[0], u[1])?;
+            for v in vs.windows(2) {
+                patches.push(strip.restricted(Direction::V, v[0], v[1])?);
+            }
+        }
+        Ok(patches)
+    }
+}
