@@ -5,6 +5,9 @@
 //! samples to 64 × 64 in ≤ 300 ms. `dense grid/pointwise` is the baseline the separable grid
 //! evaluation is measured against in the same run.
 //!
+//! Knot insertion, refinement, elevation and Bézier extraction of a 64 × 64 grid are timed
+//! too (issue 24).
+//!
 //! Run: `cargo bench --bench bspline`.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
@@ -135,5 +138,34 @@ fn fitting(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, evaluation, fitting);
+/// Knot insertion, refinement, degree elevation and Bézier extraction of a 64 × 64 bicubic grid
+/// (issue 24: "in microseconds").
+fn refinement(c: &mut Criterion) {
+    use splineface::bspline::Direction;
+    let s = cubic_surface(64);
+    let mut g = c.benchmark_group("refinement 64x64");
+    g.sample_size(30);
+    g.bench_function("insert one knot in u", |b| {
+        b.iter(|| black_box(s.insert_knot(Direction::U, black_box(0.4321), 1).unwrap()))
+    });
+    g.bench_function("insert a knot 3 times in u", |b| {
+        b.iter(|| black_box(s.insert_knot(Direction::U, black_box(0.4321), 3).unwrap()))
+    });
+    let values: Vec<f64> = (1..64).map(|k| (k as f64 - 0.5) / 63.0).collect();
+    g.bench_function("refine by 63 knots in v", |b| {
+        b.iter(|| black_box(s.refine_knots(Direction::V, black_box(&values)).unwrap()))
+    });
+    g.bench_function("elevate degree by 1 in u", |b| {
+        b.iter(|| black_box(s.elevate_degree(Direction::U, 1).unwrap()))
+    });
+    g.bench_function("split in u", |b| {
+        b.iter(|| black_box(s.split(Direction::U, black_box(0.4321)).unwrap()))
+    });
+    g.bench_function("bezier patches (3721)", |b| {
+        b.iter(|| black_box(s.bezier_patches().unwrap()))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, evaluation, fitting, refinement);
 criterion_main!(benches);

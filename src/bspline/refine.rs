@@ -210,7 +210,11 @@ impl BSplineSurface {
         let inserts: Vec<Real> = std::iter::repeat_n(lo, missing(lo))
             .chain(std::iter::repeat_n(hi, missing(hi)))
             .collect();
-        let refined = self.refine_knots(direction, &inserts)?;
+        let refined = if inserts.is_empty() {
+            std::borrow::Cow::Borrowed(self)
+        } else {
+            std::borrow::Cow::Owned(self.refine_knots(direction, &inserts)?)
+        };
         let u = refined.knots_in(direction).knots();
         // `lo` occupies u[s..s + m]: the first basis function alive on [lo, lo + ε) is
         // N_{s+m−1−p}; `hi` starts at u[e], the last one alive on (hi − ε, hi] is N_{e−1}.
@@ -307,5 +311,230 @@ impl BSplineSurface {
             }
         }
         Ok(patches)
+    }
+}
+
+/// `n choose k`, exactly for the small arguments of degree elevation.
+fn binomial(n: usize, k: usize) -> Real {
+    (0..k).fold(1.0, |acc, i| acc * (n - i) as Real / (i + 1) as Real)
+}
+
+/// The NURBS Book A5.9 (`DegreeElevateCurve`): a curve of degree `p` on the clamped knot
+/// vector `knots` (interior multiplicities at most `p`) raised to degree `p + t`: the new knot
+/// vector (every distinct knot's multiplicity up by `t`) and control points.
+fn elevate_curve(
+    knots: &[Real],
+    p: usize,
+    points: &[Point3<Real>],
+    t: usize,
+) -> (Vec<Real>, Vec<Point3<Real>>) {
+    let n = points.len() - 1;
+    if p == 0 {
+        // A constant (one span: the caller refuses interior knots of degree 0, where the
+        // curve breaks): its one point t + 1 times.
+        let (start, end) = (knots[0], knots[knots.len() - 1]);
+        let mut u = vec![start; t + 1];
+        u.extend(std::iter::repeat_n(end, t + 1));
+        return (u, vec![points[0]; t + 1]);
+    }
+    let m = n + p + 1;
+    let ph = p + t;
+    let ph2 = ph / 2;
+    let zero = Point3::<Real>::origin();
+    let blend = |a: Real, x: Point3<Real>, y: Point3<Real>| Point3::from(x.coords * a + y.coords * (1.0 - a));
+    // Bézier degree-elevation coefficients.
+    let mut bezalfs = vec![vec![0.0; p + 1]; ph + 1];
+    bezalfs[0][0] = 1.0;
+    bezalfs[ph][p] = 1.0;
+    for i in 1..=ph2 {
+        let inv = 1.0 / binomial(ph, i);
+        for j in i.saturating_sub(t)..=p.min(i) {
+            bezalfs[i][j] = inv * binomial(p, j) * binomial(t, i - j);
+        }
+    }
+    for i in ph2 + 1..ph {
+        for j in i.saturating_sub(t)..=p.min(i) {
+            bezalfs[i][j] = bezalfs[ph - i][p - j];
+        }
+    }
+    let distinct_interior = {
+        let mut v: Vec<Real> = knots[p + 1..=n].to_vec();
+        v.dedup();
+        v.len()
+    };
+    let capacity = points.len() + t * (distinct_interior + 1);
+    let mut qw = vec![zero; capacity];
+    let mut uh = vec![0.0; capacity + ph + 1];
+    let mut bpts = vec![zero; p + 1];
+    let mut ebpts = vec![zero; ph + 1];
+    let mut next_bpts = vec![zero; p.max(1)];
+    let mut alfs = vec![0.0; p.max(1)];
+    let mut mh = ph;
+    let mut kind = ph + 1;
+    let mut r: isize = -1;
+    let mut a = p;
+    let mut b = p + 1;
+    let mut cind = 1;
+    let mut ua = knots[0];
+    qw[0] = points[0];
+    uh[..=ph].fill(ua);
+    bpts.copy_from_slice(&points[..=p]);
+    while b < m {
+        let i0 = b;
+        while b < m && knots[b] == knots[b + 1] {
+            b += 1;
+        }
+        let mul = b - i0 + 1;
+        mh += mul + t;
+        let ub = knots[b];
+        let oldr = r;
+        r = p as isize - mul as isize;
+        let lbz = if oldr > 0 { ((oldr + 2) / 2) as usize } else { 1 };
+        let rbz = if r > 0 { ph - ((r + 1) / 2) as usize } else { ph };
+        if r > 0 {
+            // Insert ub r times to make the Bézier segment.
+            let numer = ub - ua;
+            for k in (mul + 1..=p).rev() {
+                alfs[k - mul - 1] = numer / (knots[a + k] - ua);
+            }
+            for j in 1..=r as usize {
+                let save = r as usize - j;
+                let s = mul + j;
+                for k in (s..=p).rev() {
+                    bpts[k] = blend(alfs[k - s], bpts[k], bpts[k - 1]);
+                }
+                next_bpts[save] = bpts[p];
+            }
+        }
+        // Elevate the Bézier segment (only lbz..=ph are used below).
+        for i in lbz..=ph {
+            let mut sum = nalgebra::Vector3::zeros();
+            for j in i.saturating_sub(t)..=p.min(i) {
+                sum += bpts[j].coords * bezalfs[i][j];
+            }
+            ebpts[i] = Point3::from(sum);
+        }
+        if oldr > 1 {
+            // Remove the knot ua oldr − 1 times.
+            let mut first = kind - 2;
+            let mut last = kind;
+            let den = ub - ua;
+            let bet = (ub - uh[kind - 1]) / den;
+            for tr in 1..oldr as usize {
+                let (mut i, mut j) = (first, last);
+                let mut kj = j as isize - kind as isize + 1;
+                while j - i > tr {
+                    if i < cind {
+                        let alf = (ub - uh[i]) / (ua - uh[i]);
+                        qw[i] = blend(alf, qw[i], qw[i - 1]);
+                    }
+                    if j >= lbz {
+                        let k = kj as usize;
+                        if j - tr <= kind - ph + oldr as usize {
+                            let gam = (ub - uh[j - tr]) / den;
+                            ebpts[k] = blend(gam, ebpts[k], ebpts[k + 1]);
+                        } else {
+                            ebpts[k] = blend(bet, ebpts[k], ebpts[k + 1]);
+                        }
+                    }
+                    i += 1;
+                    j -= 1;
+                    kj -= 1;
+                }
+                first -= 1;
+                last += 1;
+            }
+        }
+        if a != p {
+            // Load the knot ua.
+            for _ in 0..ph - oldr as usize {
+                uh[kind] = ua;
+                kind += 1;
+            }
+        }
+        for j in lbz..=rbz {
+            qw[cind] = ebpts[j];
+            cind += 1;
+        }
+        if b < m {
+            let r = r.max(0) as usize;
+            bpts[..r].copy_from_slice(&next_bpts[..r]);
+            for j in r..=p {
+                bpts[j] = points[b - p + j];
+            }
+            a = b;
+            b += 1;
+            ua = ub;
+        } else {
+            for i in 0..=ph {
+                uh[kind + i] = ub;
+            }
+        }
+    }
+    let nh = mh - ph - 1;
+    qw.truncate(nh + 1);
+    uh.truncate(nh + ph + 2);
+    (uh, qw)
+}
+
+impl BSplineSurface {
+    /// The same surface with its degree along `direction` raised by `by` (The NURBS Book A5.9
+    /// on every row or column): every distinct knot's multiplicity goes up by `by`, so the
+    /// surface keeps its continuity. The result has clamped knots along `direction`
+    /// ([`BSplineSurface::clamped`] first).
+    ///
+    /// # Errors
+    /// [`BSplineError::DegreeTooHigh`] beyond [`super::MAX_DEGREE`];
+    /// [`BSplineError::KnotMultiplicityTooHigh`] for a surface that breaks at an interior knot
+    /// (multiplicity `degree + 1`): split it there first.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(2, 4, 0.0, 1.0)?;
+    /// let grid = (0..16).map(|i| Point3::new((i / 4) as f64, (i % 4) as f64, ((i * 5) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 4, 4, grid)?;
+    /// let cubic = surface.elevate_degree(Direction::V, 1)?;
+    /// assert_eq!((cubic.degree_v(), cubic.cols()), (3, 6));
+    /// assert!((surface.eval(0.4, 0.8)? - cubic.eval(0.4, 0.8)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn elevate_degree(&self, direction: Direction, by: usize) -> Result<Self, BSplineError> {
+        let p = self.knots_in(direction).degree();
+        if by == 0 {
+            return Ok(self.clone());
+        }
+        if p + by > super::MAX_DEGREE {
+            return Err(BSplineError::DegreeTooHigh {
+                degree: p + by,
+                max: super::MAX_DEGREE,
+            });
+        }
+        let clamped = self.clamped()?;
+        let knots = clamped.knots_in(direction);
+        let inner = &knots.knots()[p + 1..knots.num_control_points()];
+        for run in inner.chunk_by(|a, b| a == b) {
+            if run.len() > p {
+                return Err(BSplineError::KnotMultiplicityTooHigh {
+                    value: run[0],
+                    multiplicity: run.len(),
+                    max: p,
+                });
+            }
+        }
+        let mut elevated_knots = Vec::new();
+        let curves: Vec<Vec<Point3<Real>>> = clamped
+            .curves(direction)
+            .iter()
+            .map(|curve| {
+                let (u, q) = elevate_curve(knots.knots(), p, curve, by);
+                elevated_knots = u;
+                q
+            })
+            .collect();
+        clamped.with_curves(direction, KnotVector::new(p + by, elevated_knots)?, &curves)
     }
 }

@@ -211,3 +211,101 @@ fn bad_knots_are_refused() {
         Err(BSplineError::ParameterOutOfDomain { .. })
     ));
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    #[test]
+    fn degree_elevation_keeps_the_surface_and_its_continuity(
+        s in surface(),
+        direction in direction(),
+        by in 1usize..=3,
+    ) {
+        let knots = knots_of(&s, direction);
+        let p = knots.degree();
+        let (start, end) = knots.domain();
+        let inner: Vec<Real> = knots.knots().iter().copied().filter(|&k| k > start && k < end).collect();
+        let breaks = inner.chunk_by(|a, b| a == b).any(|run| run.len() > p);
+        prop_assume!(p + by <= splineface::bspline::MAX_DEGREE);
+        let elevated = s.elevate_degree(direction, by);
+        if breaks {
+            let refused = matches!(elevated, Err(BSplineError::KnotMultiplicityTooHigh { .. }));
+            prop_assert!(refused);
+            return Ok(());
+        }
+        let elevated = elevated.unwrap();
+        let k = knots_of(&elevated, direction);
+        prop_assert_eq!(k.degree(), p + by);
+        prop_assert!(k.is_clamped());
+        // Every distinct knot of the domain once more per degree added.
+        let runs = |v: &[Real]| -> Vec<(Real, usize)> {
+            v.chunk_by(|a, b| a == b).map(|r| (r[0], r.len())).collect()
+        };
+        let inner_after: Vec<Real> = k.knots().iter().copied().filter(|&x| x > start && x < end).collect();
+        let before = runs(&inner);
+        let after = runs(&inner_after);
+        prop_assert_eq!(before.len(), after.len());
+        for ((x, m), (y, n)) in before.iter().zip(&after) {
+            prop_assert_eq!((x, m + by), (y, *n));
+        }
+        let (u, v) = domain(&s);
+        prop_assert_eq!(domain(&elevated), (u, v));
+        // Knot removal inside A5.9 divides by span widths: its rounding grows as the
+        // narrowest span shrinks against the domain (the generator makes spans down to 10⁻⁴).
+        let narrowest = k
+            .knots()
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .filter(|&w| w > 0.0)
+            .fold(Real::INFINITY, Real::min);
+        let condition = ((end - start) / narrowest).max(1.0);
+        let error = deviation(&s, &elevated, u, v);
+        prop_assert!(error < TOLERANCE * condition, "{} (condition {})", error, condition);
+    }
+}
+
+#[test]
+fn elevation_beyond_the_largest_degree_is_refused() {
+    let k = KnotVector::clamped_uniform(3, 4, 0.0, 1.0).unwrap();
+    let s = random_surface(k.clone(), k, 5);
+    let max = splineface::bspline::MAX_DEGREE;
+    assert!(matches!(
+        s.elevate_degree(Direction::U, max),
+        Err(BSplineError::DegreeTooHigh { .. })
+    ));
+    assert_eq!(s.elevate_degree(Direction::V, 0).unwrap(), s);
+}
+
+#[test]
+fn a_large_uniform_surface_survives_every_operation_to_1e_12() {
+    // The bar, on a well-conditioned surface: 64 × 64 bicubic, control points in
+    // [-1, 1]³ (random_surface's [-10, 10] scaled), clamped uniform knots.
+    let k = KnotVector::clamped_uniform(3, 64, 0.0, 1.0).unwrap();
+    let big = random_surface(k.clone(), k, 11);
+    let grid = big.control_points().iter().map(|p| p * 0.1).collect();
+    let s = big.with_control_points(grid).unwrap();
+    let inserted = s.insert_knot(Direction::U, 0.123_456, 2).unwrap();
+    let refined = s
+        .refine_knots(Direction::V, &[0.01, 0.25, 0.25, 0.5, 0.777, 0.999])
+        .unwrap();
+    let elevated = s
+        .elevate_degree(Direction::U, 1)
+        .unwrap()
+        .elevate_degree(Direction::V, 2)
+        .unwrap();
+    assert_eq!((elevated.degree_u(), elevated.degree_v()), (4, 5));
+    assert_eq!((elevated.rows(), elevated.cols()), (64 + 61, 64 + 2 * 61));
+    let (u, v) = ((0.0, 1.0), (0.0, 1.0));
+    for other in [&inserted, &refined, &elevated] {
+        let error = deviation(&s, other, u, v);
+        assert!(error < 1e-12, "{error}");
+    }
+    let patches = s.bezier_patches().unwrap();
+    assert_eq!(patches.len(), 61 * 61);
+    let worst = patches
+        .iter()
+        .step_by(97)
+        .map(|p| deviation(&s, p, p.domain_u(), p.domain_v()))
+        .fold(0.0, Real::max);
+    assert!(worst < 1e-12, "{worst}");
+}
