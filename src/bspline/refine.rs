@@ -321,7 +321,9 @@ fn binomial(n: usize, k: usize) -> Real {
 
 /// The NURBS Book A5.9 (`DegreeElevateCurve`): a curve of degree `p` on the clamped knot
 /// vector `knots` (interior multiplicities at most `p`) raised to degree `p + t`: the new knot
-/// vector (every distinct knot's multiplicity up by `t`) and control points.
+/// vector (every distinct knot's multiplicity up by `t`) and control points. Written with the
+/// book's indices so that it can be checked line by line against it.
+#[allow(clippy::needless_range_loop)]
 fn elevate_curve(
     knots: &[Real],
     p: usize,
