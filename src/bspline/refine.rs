@@ -323,7 +323,7 @@ fn binomial(n: usize, k: usize) -> Real {
 /// vector `knots` (interior multiplicities at most `p`) raised to degree `p + t`: the new knot
 /// vector (every distinct knot's multiplicity up by `t`) and control points. Written with the
 /// book's indices so that it can be checked line by line against it.
-#[allow(clippy::needless_range_loop)]
+#[allow(clippy::needless_range_loop, clippy::explicit_counter_loop)]
 fn elevate_curve(
     knots: &[Real],
     p: usize,
