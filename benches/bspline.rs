@@ -167,5 +167,33 @@ fn refinement(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, evaluation, fitting, refinement);
+/// Point inversion on a 32 × 32 bicubic grid (issue 24's target: ≥ 2 M queries/s on one core
+/// for points 0.1% of the surface's size from it).
+fn inversion(c: &mut Criterion) {
+    use splineface::bspline::ClosestPoints;
+    let pool = one_thread();
+    let s = cubic_surface(32);
+    let inverter = ClosestPoints::new(&s);
+    let mut rng = Lcg(4);
+    // The grid spans 31 × 31 units: 0.1% of its size is about 0.044.
+    let queries: Vec<Point3<f64>> = (0..100_000)
+        .map(|_| {
+            let (u, v) = (rng.next(), rng.next());
+            let n = s.normal(u, v).unwrap().unwrap().into_inner();
+            s.eval(u, v).unwrap() + n * (0.088 * rng.next() - 0.044)
+        })
+        .collect();
+    let mut g = c.benchmark_group("inversion");
+    g.throughput(Throughput::Elements(queries.len() as u64));
+    g.sample_size(20);
+    g.bench_function("closest 32x32 100k at 0.1%", |b| {
+        b.iter(|| pool.install(|| black_box(inverter.closest_many(black_box(&queries)).unwrap())))
+    });
+    g.bench_function("build 32x32", |b| {
+        b.iter(|| black_box(ClosestPoints::new(black_box(&s))))
+    });
+    g.finish();
+}
+
+criterion_group!(benches, evaluation, fitting, refinement, inversion);
 criterion_main!(benches);

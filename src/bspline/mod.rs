@@ -40,6 +40,7 @@ macro_rules! with_widths {
 mod band;
 mod basis;
 mod fit;
+mod inversion;
 mod knots;
 mod refine;
 mod space;
@@ -47,6 +48,7 @@ mod surface;
 
 pub use basis::{basis_derivatives, basis_functions};
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
+pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};
 pub use space::{SpaceSamples, SurfaceSpace};
 pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives};
