@@ -115,6 +115,11 @@ fn to_numpy<'py, T: Element>(
     Ok(array.into_pyarray(py))
 }
 
+/// A copy of `values` as a numpy array of `shape`, as a Python object.
+fn copied<T: Element + Clone>(py: Python<'_>, values: &[T], shape: &[usize]) -> PyResult<Py<PyAny>> {
+    Ok(to_numpy(py, values.to_vec(), shape)?.into_any().unbind())
+}
+
 /// Points as a numpy array of `shape` (`…, 3`), their buffer handed over without a copy.
 fn points_to_numpy(py: Python<'_>, points: Vec<Point3<f64>>, shape: &[usize]) -> PyResult<Py<PyAny>> {
     Ok(to_numpy(py, coordinates(points), shape)?.into_any().unbind())
@@ -453,9 +458,7 @@ impl Face {
     /// The 68 iBUG points: float64 `(68, 2)`, pixels, `x` right and `y` down.
     #[getter]
     fn points(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        Ok(to_numpy(py, self.points.clone(), &[self.points.len() / 2, 2])?
-            .into_any()
-            .unbind())
+        copied(py, &self.points, &[self.points.len() / 2, 2])
     }
 
     fn __repr__(&self) -> String {
@@ -598,30 +601,20 @@ impl Reconstruction {
     /// Mesh vertices: float64 `(n, 3)`, in `units`.
     #[getter]
     fn vertices(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        Ok(
-            to_numpy(py, self.vertices.clone(), &[self.vertices.len() / 3, 3])?
-                .into_any()
-                .unbind(),
-        )
+        copied(py, &self.vertices, &[self.vertices.len() / 3, 3])
     }
 
     /// Mesh triangles: uint32 `(m, 3)`, counter-clockwise seen from the front.
     #[getter]
     fn triangles(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        Ok(
-            to_numpy(py, self.triangles.clone(), &[self.triangles.len() / 3, 3])?
-                .into_any()
-                .unbind(),
-        )
+        copied(py, &self.triangles, &[self.triangles.len() / 3, 3])
     }
 
     /// Each vertex's surface parameters `(u, v)`, which are its texture coordinates in
     /// `texture`: float64 `(n, 2)`.
     #[getter]
     fn uv(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        Ok(to_numpy(py, self.uv.clone(), &[self.uv.len() / 2, 2])?
-            .into_any()
-            .unbind())
+        copied(py, &self.uv, &[self.uv.len() / 2, 2])
     }
 
     /// The texture atlas (`face.png`): uint8 `(side, side, 3)`, row 0 at `v = 1`; `None`
@@ -641,18 +634,14 @@ impl Reconstruction {
     #[getter]
     fn depth(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
         let (w, h, values) = &self.depth;
-        Ok(to_numpy(py, values.clone(), &[*h, *w])?.into_any().unbind())
+        copied(py, values, &[*h, *w])
     }
 
     /// The 40-point 3D structure: float64 `(40, 3)`, in `units` (`x` right, `y` up, `z`
     /// toward the viewer, origin between the eye centres).
     #[getter]
     fn structure(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        Ok(
-            to_numpy(py, self.structure.clone(), &[self.structure.len() / 3, 3])?
-                .into_any()
-                .unbind(),
-        )
+        copied(py, &self.structure, &[self.structure.len() / 3, 3])
     }
 
     /// `mm` or `canonical`.

@@ -160,6 +160,17 @@ enum Node {
     Leaf(u32),
 }
 
+/// The corners of the axis-aligned box of `points` (infinite and inverted for none).
+fn bounds(points: impl Iterator<Item = Point3<Real>>) -> (Point3<Real>, Point3<Real>) {
+    points.fold(
+        (
+            Point3::from([Real::INFINITY; 3]),
+            Point3::from([Real::NEG_INFINITY; 3]),
+        ),
+        |(lo, hi), p| (lo.inf(&p), hi.sup(&p)),
+    )
+}
+
 fn box_distance2(lo: &Point3<Real>, hi: &Point3<Real>, p: &Point3<Real>) -> Real {
     (lo - p).sup(&(p - hi)).sup(&Vector3::zeros()).norm_squared()
 }
@@ -175,12 +186,10 @@ impl BoxTree {
     }
 
     fn build(&mut self, boxes: &[(Point3<Real>, Point3<Real>)], items: &mut [u32]) -> u32 {
-        let (lo, hi) = items.iter().fold(
-            (
-                Point3::from([Real::INFINITY; 3]),
-                Point3::from([Real::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), &k| (lo.inf(&boxes[k as usize].0), hi.sup(&boxes[k as usize].1)),
+        let (lo, hi) = bounds(
+            items
+                .iter()
+                .flat_map(|&k| [boxes[k as usize].0, boxes[k as usize].1]),
         );
         let at = self.nodes.len() as u32;
         if items.len() == 1 {
@@ -257,21 +266,14 @@ pub struct ClosestPoints<'a> {
 
 /// `SAMPLES_PER_SPAN` parameters a non-empty span of `knots`, the domain's ends included.
 fn sample_parameters(knots: &super::KnotVector) -> Vec<Real> {
-    let (start, end) = knots.domain();
-    let mut breaks: Vec<Real> = knots
-        .knots()
-        .iter()
-        .copied()
-        .filter(|&k| k >= start && k <= end)
-        .collect();
-    breaks.dedup();
+    let breaks = knots.breakpoints();
     let mut out = Vec::new();
     for w in breaks.windows(2) {
         for s in 0..SAMPLES_PER_SPAN {
             out.push(w[0] + (w[1] - w[0]) * s as Real / SAMPLES_PER_SPAN as Real);
         }
     }
-    out.push(end);
+    out.push(knots.domain().1);
     out
 }
 
@@ -293,27 +295,13 @@ impl<'a> ClosestPoints<'a> {
                     .max((at(i + 1, j) - at(i, j + 1)).norm());
             }
         }
-        let (lo, hi) = points.iter().fold(
-            (
-                Point3::from([Real::INFINITY; 3]),
-                Point3::from([Real::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-        );
+        let (lo, hi) = bounds(points.iter().copied());
         let size = (hi - lo).norm().max(Real::MIN_POSITIVE);
         let boxes = surface
             .bezier_patches()
             .expect("a valid surface has Bézier patches")
             .iter()
-            .map(|patch| {
-                patch.control_points().iter().fold(
-                    (
-                        Point3::from([Real::INFINITY; 3]),
-                        Point3::from([Real::NEG_INFINITY; 3]),
-                    ),
-                    |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-                )
-            })
+            .map(|patch| bounds(patch.control_points().iter().copied()))
             .collect::<Vec<_>>();
         let boxes = BoxTree::new(&boxes);
         let spans_v = (vs.len() - 1) / SAMPLES_PER_SPAN;

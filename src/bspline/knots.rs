@@ -309,6 +309,38 @@ impl KnotVector {
         &self.inverse_denominators[span * per_span..(span + 1) * per_span]
     }
 
+    /// The distinct knot values in the domain, ends included: the breakpoints between its
+    /// non-empty spans.
+    pub fn breakpoints(&self) -> Vec<Real> {
+        let mut values: Vec<Real> = self
+            .knots
+            .iter()
+            .copied()
+            .filter(|&k| k >= self.start && k <= self.end)
+            .collect();
+        values.dedup();
+        values
+    }
+
+    /// `Ok` when `value` lies in the domain; else [`BSplineError::ParameterOutOfDomain`] for
+    /// `direction` (NaN included).
+    pub(crate) fn check_in_domain(
+        &self,
+        direction: super::Direction,
+        value: Real,
+    ) -> Result<(), BSplineError> {
+        if value >= self.start && value <= self.end {
+            Ok(())
+        } else {
+            Err(BSplineError::ParameterOutOfDomain {
+                direction,
+                value,
+                start: self.start,
+                end: self.end,
+            })
+        }
+    }
+
     /// The Greville abscissae `ξᵢ = (u_{i+1} + … + u_{i+p}) / p`, one per control point (for
     /// degree 0, the span midpoints).
     ///

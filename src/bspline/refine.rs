@@ -134,14 +134,8 @@ impl BSplineSurface {
     /// ```
     pub fn refine_knots(&self, direction: Direction, values: &[Real]) -> Result<Self, BSplineError> {
         let knots = self.knots_in(direction);
-        let (start, end) = knots.domain();
-        if let Some(&value) = values.iter().find(|&&x| !(x >= start && x <= end)) {
-            return Err(BSplineError::ParameterOutOfDomain {
-                direction,
-                value,
-                start,
-                end,
-            });
+        for &value in values {
+            knots.check_in_domain(direction, value)?;
         }
         let mut x = values.to_vec();
         x.sort_by(Real::total_cmp);
@@ -191,17 +185,8 @@ impl BSplineSurface {
     /// ([`BSplineError::EmptyDomain`] when `lo ≥ hi`).
     pub fn restricted(&self, direction: Direction, lo: Real, hi: Real) -> Result<Self, BSplineError> {
         let knots = self.knots_in(direction);
-        let (start, end) = knots.domain();
-        for value in [lo, hi] {
-            if !(value >= start && value <= end) {
-                return Err(BSplineError::ParameterOutOfDomain {
-                    direction,
-                    value,
-                    start,
-                    end,
-                });
-            }
-        }
+        knots.check_in_domain(direction, lo)?;
+        knots.check_in_domain(direction, hi)?;
         if lo >= hi {
             return Err(BSplineError::EmptyDomain { start: lo, end: hi });
         }
@@ -280,18 +265,7 @@ impl BSplineSurface {
     /// # Errors
     /// None in practice; as [`BSplineSurface::restricted`].
     pub fn bezier_patches(&self) -> Result<Vec<BSplineSurface>, BSplineError> {
-        let breaks = |knots: &KnotVector| -> Vec<Real> {
-            let (start, end) = knots.domain();
-            let mut values: Vec<Real> = knots
-                .knots()
-                .iter()
-                .copied()
-                .filter(|&k| k >= start && k <= end)
-                .collect();
-            values.dedup();
-            values
-        };
-        let (us, vs) = (breaks(self.knots_u()), breaks(self.knots_v()));
+        let (us, vs) = (self.knots_u().breakpoints(), self.knots_v().breakpoints());
         // Every break at multiplicity `degree` once, so that each patch below is a slice.
         let mut full = self.clone();
         for (direction, values) in [(Direction::U, &us), (Direction::V, &vs)] {

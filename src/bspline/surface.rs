@@ -607,15 +607,7 @@ pub(crate) fn check_parameter(
         return Err(BSplineError::NonFiniteParameter { u, v });
     }
     for (knots, direction, value) in [(knots_u, Direction::U, u), (knots_v, Direction::V, v)] {
-        let (start, end) = knots.domain();
-        if !(value >= start && value <= end) {
-            return Err(BSplineError::ParameterOutOfDomain {
-                direction,
-                value,
-                start,
-                end,
-            });
-        }
+        knots.check_in_domain(direction, value)?;
     }
     Ok(())
 }

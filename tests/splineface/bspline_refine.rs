@@ -133,13 +133,7 @@ proptest! {
     fn bezier_patches_tile_the_surface(s in surface()) {
         prop_assume!(s.degree_u() >= 1 && s.degree_v() >= 1);
         let patches = s.bezier_patches().unwrap();
-        let spans = |k: &KnotVector| {
-            let (a, b) = k.domain();
-            let mut v: Vec<Real> = k.knots().iter().copied().filter(|&x| x >= a && x <= b).collect();
-            v.dedup();
-            v
-        };
-        let (us, vs) = (spans(s.knots_u()), spans(s.knots_v()));
+        let (us, vs) = (s.knots_u().breakpoints(), s.knots_v().breakpoints());
         prop_assert_eq!(patches.len(), (us.len() - 1) * (vs.len() - 1));
         for (k, patch) in patches.iter().enumerate() {
             let (i, j) = (k / (vs.len() - 1), k % (vs.len() - 1));
