@@ -39,6 +39,7 @@ macro_rules! with_widths {
 
 mod band;
 mod basis;
+mod curvature;
 mod fit;
 mod inversion;
 mod knots;
@@ -47,6 +48,7 @@ mod space;
 mod surface;
 
 pub use basis::{basis_derivatives, basis_functions};
+pub use curvature::Curvature;
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};

@@ -7,6 +7,7 @@ mod align;
 mod bad_inputs;
 mod batch;
 mod bspline_basis;
+mod bspline_curvature;
 mod bspline_fit;
 mod bspline_inversion;
 mod bspline_knots;

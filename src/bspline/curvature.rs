@@ -1,0 +1,98 @@
+//! Curvatures of a surface from its first and second fundamental forms (do Carmo §3.3; The
+//! NURBS Book leaves them to the differential geometry texts).
+
+use nalgebra::{Unit, Vector3};
+
+use super::{BSplineError, BSplineSurface};
+use crate::Real;
+
+/// The curvatures of a surface at one parameter. Signs follow the normal
+/// `n = F_u × F_v / |F_u × F_v|` ([`BSplineSurface::normal`]): a curvature is positive where
+/// the surface bends toward `n` (a bowl opening along `n`), negative where it bends away (a
+/// dome seen from `n`'s side).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Curvature {
+    /// The unit normal.
+    pub normal: Unit<Vector3<Real>>,
+    /// Gaussian curvature `K = κ₁κ₂ = (LN − M²)/(EG − F²)`.
+    pub gaussian: Real,
+    /// Mean curvature `H = (κ₁ + κ₂)/2 = (EN − 2FM + GL) / (2(EG − F²))`.
+    pub mean: Real,
+    /// The principal curvatures `κ₁ ≥ κ₂`.
+    pub principal: (Real, Real),
+    /// Their unit directions in space (tangent to the surface); at an umbilic (`κ₁ = κ₂`),
+    /// where every direction is principal, `F_u`'s direction and the one orthogonal to it.
+    pub directions: (Unit<Vector3<Real>>, Unit<Vector3<Real>>),
+}
+
+impl BSplineSurface {
+    /// The curvatures at `(u, v)`, or `None` where the surface is degenerate (its tangents
+    /// parallel or vanishing, as for [`BSplineSurface::normal`]).
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::eval`].
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// // z = (x² + y²)/2 over [0, 1]², exactly (a quadratic Bézier patch): at the origin both
+    /// // principal curvatures are 1 (the surface bends toward its normal, +z).
+    /// let k = KnotVector::clamped_uniform(2, 3, 0.0, 1.0)?;
+    /// let z = |i: usize, j: usize| if i == 2 && j == 2 { 1.0 } else if i == 2 || j == 2 { 0.5 } else { 0.0 };
+    /// let grid = (0..9).map(|k| Point3::new((k / 3) as f64 / 2.0, (k % 3) as f64 / 2.0, z(k / 3, k % 3))).collect();
+    /// let bowl = BSplineSurface::new(k.clone(), k, 3, 3, grid)?;
+    /// let c = bowl.curvature(0.0, 0.0)?.unwrap();
+    /// assert!((c.gaussian - 1.0).abs() < 1e-12 && (c.mean - 1.0).abs() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn curvature(&self, u: Real, v: Real) -> Result<Option<Curvature>, BSplineError> {
+        let d = self.derivatives(u, v, 2)?;
+        let (fu, fv) = (d.get(1, 0), d.get(0, 1));
+        let Some(normal) = self.normal(u, v)? else {
+            return Ok(None);
+        };
+        let (e, f, g) = (fu.dot(&fu), fu.dot(&fv), fv.dot(&fv));
+        let (l, m, n) = (
+            d.get(2, 0).dot(&normal),
+            d.get(1, 1).dot(&normal),
+            d.get(0, 2).dot(&normal),
+        );
+        let det = e * g - f * f;
+        let gaussian = (l * n - m * m) / det;
+        let mean = (e * n - 2.0 * f * m + g * l) / (2.0 * det);
+        let root = (mean * mean - gaussian).max(0.0).sqrt();
+        let (k1, k2) = (mean + root, mean - root);
+        // A principal direction (a, b) in the parameters solves (II − κ I)(a, b) = 0.
+        let direction = |k: Real| -> Option<Unit<Vector3<Real>>> {
+            let rows = [(l - k * e, m - k * f), (m - k * f, n - k * g)];
+            let (p, q) = if rows[0].0.hypot(rows[0].1) >= rows[1].0.hypot(rows[1].1) {
+                rows[0]
+            } else {
+                rows[1]
+            };
+            // (a, b) ⟂ (p, q); an all-zero system means every direction is principal.
+            let scale = (l.abs() + m.abs() + n.abs()) * (e + g);
+            if p.hypot(q) <= 1e-12 * scale.max(Real::MIN_POSITIVE) {
+                return None;
+            }
+            Unit::try_new(fu * -q + fv * p, 0.0)
+        };
+        let directions = match (direction(k1), direction(k2)) {
+            (Some(a), Some(b)) if root > 1e-12 * mean.abs().max(root) => (a, b),
+            _ => {
+                let a = Unit::new_normalize(fu);
+                (a, Unit::new_normalize(normal.cross(&a)))
+            }
+        };
+        Ok(Some(Curvature {
+            normal,
+            gaussian,
+            mean,
+            principal: (k1, k2),
+            directions,
+        }))
+    }
+}

@@ -1,0 +1,113 @@
+//! Curvatures against the closed forms of a height field `z = f(x, y)` that a bicubic holds
+//! exactly, and the principal directions against their definition.
+
+use nalgebra::{Point3, Vector3};
+use splineface::Real;
+use splineface::bspline::{BSplineSurface, KnotVector, SurfaceFit};
+
+use super::common::Lcg;
+
+/// `f`, its first and second derivatives: a cubic polynomial.
+fn f(x: Real, y: Real) -> [Real; 6] {
+    [
+        0.3 * x * x - 0.2 * x * y + 0.1 * y * y + 0.05 * x * x * x - 0.04 * x * y * y,
+        0.6 * x - 0.2 * y + 0.15 * x * x - 0.04 * y * y,
+        -0.2 * x + 0.2 * y - 0.08 * x * y,
+        0.6 + 0.3 * x,
+        -0.2 - 0.08 * y,
+        0.2 - 0.08 * x,
+    ]
+}
+
+/// The height field as a bicubic Bézier patch over [0, 1]² with (x, y) = (u, v), by an exact
+/// least-squares fit.
+fn height_field() -> BSplineSurface {
+    let mut params = Vec::new();
+    let mut points = Vec::new();
+    for i in 0..12 {
+        for j in 0..12 {
+            let (u, v) = (i as Real / 11.0, j as Real / 11.0);
+            params.push([u, v]);
+            points.push(Point3::new(u, v, f(u, v)[0]));
+        }
+    }
+    let k = KnotVector::clamped_uniform(3, 4, 0.0, 1.0).unwrap();
+    let fit = SurfaceFit::new(k.clone(), k).fit(&params, &points).unwrap();
+    assert!(fit.report.max < 1e-12);
+    fit.surface
+}
+
+#[test]
+fn curvatures_match_the_closed_forms_of_a_height_field() {
+    let s = height_field();
+    let mut rng = Lcg(3);
+    for _ in 0..200 {
+        let (x, y) = (rng.next(), rng.next());
+        let [_, fx, fy, fxx, fxy, fyy] = f(x, y);
+        let w = 1.0 + fx * fx + fy * fy;
+        let gaussian = (fxx * fyy - fxy * fxy) / (w * w);
+        let mean =
+            ((1.0 + fy * fy) * fxx - 2.0 * fx * fy * fxy + (1.0 + fx * fx) * fyy) / (2.0 * w.powf(1.5));
+        let c = s.curvature(x, y).unwrap().unwrap();
+        assert!(
+            (c.gaussian - gaussian).abs() < 1e-10,
+            "{} {}",
+            c.gaussian,
+            gaussian
+        );
+        assert!((c.mean - mean).abs() < 1e-10, "{} {}", c.mean, mean);
+        let (k1, k2) = c.principal;
+        assert!(k1 >= k2);
+        assert!((k1 * k2 - gaussian).abs() < 1e-10 && (0.5 * (k1 + k2) - mean).abs() < 1e-10);
+        let expected_normal = Vector3::new(-fx, -fy, 1.0) / w.sqrt();
+        assert!((c.normal.into_inner() - expected_normal).norm() < 1e-12);
+        // The directions: unit, tangent, orthogonal, and the normal curvature along each is
+        // its principal curvature (κₙ(t) = II(t)/I(t), t = a F_u + b F_v).
+        let d = s.derivatives(x, y, 2).unwrap();
+        let (fu, fv) = (d.get(1, 0), d.get(0, 1));
+        let normal_curvature = |t: &Vector3<Real>| {
+            // Solve t = a F_u + b F_v in the tangent plane.
+            let (e, ff, g) = (fu.dot(&fu), fu.dot(&fv), fv.dot(&fv));
+            let (tu, tv) = (t.dot(&fu), t.dot(&fv));
+            let det = e * g - ff * ff;
+            let (a, b) = ((g * tu - ff * tv) / det, (e * tv - ff * tu) / det);
+            let n = c.normal.into_inner();
+            let second =
+                a * a * d.get(2, 0).dot(&n) + 2.0 * a * b * d.get(1, 1).dot(&n) + b * b * d.get(0, 2).dot(&n);
+            let first = a * a * e + 2.0 * a * b * ff + b * b * g;
+            second / first
+        };
+        let (t1, t2) = (c.directions.0.into_inner(), c.directions.1.into_inner());
+        assert!(t1.dot(&c.normal).abs() < 1e-12 && t2.dot(&c.normal).abs() < 1e-12);
+        assert!(t1.dot(&t2).abs() < 1e-9);
+        assert!((normal_curvature(&t1) - k1).abs() < 1e-9);
+        assert!((normal_curvature(&t2) - k2).abs() < 1e-9);
+    }
+}
+
+#[test]
+fn a_plane_is_flat_and_a_collapsed_edge_has_no_curvature() {
+    let k = KnotVector::clamped_uniform(3, 4, 0.0, 1.0).unwrap();
+    let plane: Vec<Point3<Real>> = (0..16)
+        .map(|i| Point3::new((i / 4) as Real, (i % 4) as Real, 0.5 * (i / 4) as Real))
+        .collect();
+    let s = BSplineSurface::new(k.clone(), k.clone(), 4, 4, plane).unwrap();
+    let c = s.curvature(0.3, 0.7).unwrap().unwrap();
+    assert_eq!((c.gaussian, c.mean), (0.0, 0.0));
+    assert_eq!(c.principal, (0.0, 0.0));
+    // Every direction is principal on a plane: F_u's and its orthogonal one.
+    assert!(c.directions.0.dot(&c.directions.1).abs() < 1e-12);
+    // The row u = 0 collapsed to one point: no normal there, no curvature.
+    let collapsed: Vec<Point3<Real>> = (0..16)
+        .map(|i| {
+            if i / 4 == 0 {
+                Point3::origin()
+            } else {
+                Point3::new((i / 4) as Real, (i % 4) as Real, 0.0)
+            }
+        })
+        .collect();
+    let s = BSplineSurface::new(k.clone(), k, 4, 4, collapsed).unwrap();
+    assert!(s.curvature(0.0, 0.5).unwrap().is_none());
+    assert!(s.curvature(1.5, 0.5).is_err());
+}
