@@ -330,7 +330,11 @@ pub fn check_output_dir(out: &Path) -> Result<(), OutputError> {
 /// # Errors
 /// Why not.
 pub fn probe_writable(directory: &Path) -> std::io::Result<()> {
-    let probe = directory.join(format!(".splineface-probe-{}", std::process::id()));
+    // Named like a temporary of `splineface-probe`, so that a probe a killed run left is
+    // cleared by the next one as its temporaries are.
+    let stem = directory.join("splineface-probe");
+    remove_stale_temporaries(&stem);
+    let probe = directory.join(format!(".splineface-probe.{}.tmp", std::process::id()));
     std::fs::File::create(&probe)?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
