@@ -46,6 +46,14 @@ pub enum BatchError {
         /// Why.
         error: std::io::Error,
     },
+    /// A file could not be read.
+    #[error("cannot read {}: {error}", path.display())]
+    Unreadable {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
     /// The root holds no sub-folders.
     #[error(
         "{}: no subject folders (one sub-folder per subject, holding its photos and/or landmark files)",
@@ -257,6 +265,24 @@ fn input_files(folder: &Path) -> Result<(Vec<PathBuf>, Vec<PathBuf>), String> {
     Ok((photos, landmarks))
 }
 
+/// A file's identity in a batch's fingerprints: its length and FNV-1a hash, `"LENGTH HASH"`;
+/// `"none"` without a file (no model, the embedded reference).
+///
+/// # Errors
+/// [`BatchError::Unreadable`] (within [`crate::io::MAX_LARGE_INPUT_BYTES`]).
+pub fn file_identity(path: Option<&Path>) -> Result<String, BatchError> {
+    let Some(path) = path else {
+        return Ok("none".to_owned());
+    };
+    let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|error| {
+        BatchError::Unreadable {
+            path: path.to_path_buf(),
+            error,
+        }
+    })?;
+    Ok(format!("{} {}", bytes.len(), fnv1a64(&bytes)))
+}
+
 /// The fingerprint of everything a subject's outputs depend on.
 fn fingerprint(files: &[PathBuf], job: &BatchJob<'_>) -> Result<String, String> {
     let mut text = format!(
@@ -267,13 +293,12 @@ fn fingerprint(files: &[PathBuf], job: &BatchJob<'_>) -> Result<String, String> 
         job.reference_identity
     );
     for file in files {
-        let bytes = crate::io::read_input(file, crate::io::MAX_LARGE_INPUT_BYTES)
-            .map_err(|e| format!("{}: {e}", file.display()))?;
+        let identity = file_identity(Some(file)).map_err(|e| e.to_string())?;
         let name = file
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
-        text.push_str(&format!("{name} {} {}\n", bytes.len(), fnv1a64(&bytes)));
+        text.push_str(&format!("{name} {identity}\n"));
     }
     Ok(fnv1a64(text.as_bytes()))
 }

@@ -1131,29 +1131,11 @@ fn reconstruct_command(
     Ok(())
 }
 
-/// A reference face file, or the embedded one when `path` is `None`.
+/// A reference face file ([`ReferenceFace::read`]), or the embedded one when `path` is `None`.
 fn read_reference(path: Option<&Path>) -> Result<ReferenceFace> {
     match path {
-        Some(path) => {
-            let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            ReferenceFace::from_json(&text)
-                .with_context(|| format!("{} is not a valid reference face", path.display()))
-        }
+        Some(path) => Ok(ReferenceFace::read(path)?),
         None => Ok(ReferenceFace::embedded().clone()),
-    }
-}
-
-/// The identity of an optional input file in a batch's fingerprints: `none`, or its length
-/// and hash.
-fn file_identity(path: Option<&Path>) -> Result<String> {
-    match path {
-        None => Ok("none".to_owned()),
-        Some(path) => {
-            let bytes = splineface::io::read_input(path, splineface::io::MAX_LARGE_INPUT_BYTES)
-                .with_context(|| format!("cannot read {}", path.display()))?;
-            Ok(format!("{} {}", bytes.len(), fnv1a64(&bytes)))
-        }
     }
 }
 
@@ -1166,7 +1148,9 @@ fn batch_command(
     output: &OutputArgs,
 ) -> Result<()> {
     use rayon::prelude::*;
-    use splineface::batch::{BatchJob, Status, check_output, run_subject, subjects, write_summary};
+    use splineface::batch::{
+        BatchJob, Status, check_output, file_identity, run_subject, subjects, write_summary,
+    };
     let options = output.options()?;
     if output.expression_of.is_some() {
         bail!("--expression-of names one photo; it has no meaning for a batch");
@@ -1511,7 +1495,6 @@ fn compact_model(model: &Path, out: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The photos named on the command line and in `--photos DIR`, each checked to exist.
 fn landmarks_command(
     photos: &[PathBuf],
     photo_dir: Option<&Path>,

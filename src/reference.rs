@@ -1072,6 +1072,45 @@ impl ReferenceFace {
     pub fn from_json(json: &str) -> Result<Self, serde_json::Error> {
         serde_json::from_str(json)
     }
+
+    /// Reads a reference file (within [`crate::io::MAX_DATA_INPUT_BYTES`]).
+    ///
+    /// # Errors
+    /// [`ReferenceFileError`] naming the file.
+    pub fn read(path: &std::path::Path) -> Result<Self, ReferenceFileError> {
+        let text = crate::io::read_input_text(path, crate::io::MAX_DATA_INPUT_BYTES).map_err(|error| {
+            ReferenceFileError::Unreadable {
+                path: path.to_path_buf(),
+                error,
+            }
+        })?;
+        Self::from_json(&text).map_err(|error| ReferenceFileError::Invalid {
+            path: path.to_path_buf(),
+            error,
+        })
+    }
+}
+
+/// A reference file that could not be read ([`ReferenceFace::read`]).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReferenceFileError {
+    /// The file could not be read.
+    #[error("cannot read {}: {error}", path.display())]
+    Unreadable {
+        /// The file.
+        path: std::path::PathBuf,
+        /// Why.
+        error: std::io::Error,
+    },
+    /// The file is not a reference face.
+    #[error("{} is not a valid reference face: {error}", path.display())]
+    Invalid {
+        /// The file.
+        path: std::path::PathBuf,
+        /// What is wrong.
+        error: serde_json::Error,
+    },
 }
 
 const FORMAT: &str = "splineface/reference";

@@ -483,10 +483,26 @@ impl Face {
 /// dlib's 68-point landmark model, loaded once (the `.dat` or splineface's compact form),
 /// with SeetaFace's detector.
 #[pyclass(frozen, module = "splineface")]
+#[derive(Clone)]
 struct Landmarker {
     model: Arc<ShapePredictor>,
-    /// The model file's length and hash, for a batch's fingerprints.
-    identity: String,
+    /// The model file.
+    path: PathBuf,
+    /// Its identity in a batch's fingerprints ([`splineface::batch::file_identity`]): read
+    /// when a batch first needs it, not on every load.
+    identity: Arc<std::sync::OnceLock<String>>,
+}
+
+impl Landmarker {
+    /// The model file's identity for a batch's fingerprints, computed once.
+    fn identity(&self) -> PyResult<String> {
+        if let Some(identity) = self.identity.get() {
+            return Ok(identity.clone());
+        }
+        let identity = splineface::batch::file_identity(Some(&self.path))
+            .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
+        Ok(self.identity.get_or_init(|| identity).clone())
+    }
 }
 
 /// An 8-bit image from numpy: `(h, w)` grey or `(h, w, 3)` RGB, uint8.
@@ -525,17 +541,14 @@ impl Landmarker {
     /// compact form of `splineface compact-model`).
     #[new]
     fn new(py: Python<'_>, model_path: PathBuf) -> PyResult<Self> {
-        py.detach(|| -> Result<Self, String> {
-            let bytes = splineface::io::read_input(&model_path, splineface::io::MAX_LARGE_INPUT_BYTES)
-                .map_err(|e| format!("cannot read {}: {e}", model_path.display()))?;
-            let identity = format!("{} {}", bytes.len(), splineface::reference::fnv1a64(&bytes));
-            let model = ShapePredictor::read(&model_path).map_err(|e| e.to_string())?;
-            Ok(Landmarker {
-                model: Arc::new(model),
-                identity,
-            })
+        let model = py
+            .detach(|| ShapePredictor::read(&model_path))
+            .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
+        Ok(Landmarker {
+            model: Arc::new(model),
+            path: model_path,
+            identity: Arc::default(),
         })
-        .map_err(SplinefaceError::new_err)
     }
 
     /// Every face in `image` (uint8 `(h, w)` or `(h, w, 3)` RGB), largest first, each with its
@@ -703,22 +716,12 @@ impl Reconstruction {
     }
 }
 
-/// A reference face file (or the embedded one) and its identity for a batch's fingerprints.
-fn read_reference(path: Option<&std::path::Path>) -> PyResult<(ReferenceFace, String)> {
-    let Some(path) = path else {
-        return Ok((ReferenceFace::embedded().clone(), "none".to_owned()));
-    };
-    let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
-        .map_err(|e| SplinefaceError::new_err(format!("cannot read {}: {e}", path.display())))?;
-    let reference = ReferenceFace::from_json(&text).map_err(|e| {
-        SplinefaceError::new_err(format!("{} is not a valid reference face: {e}", path.display()))
-    })?;
-    let identity = format!(
-        "{} {}",
-        text.len(),
-        splineface::reference::fnv1a64(text.as_bytes())
-    );
-    Ok((reference, identity))
+/// A reference face file ([`ReferenceFace::read`]), or the embedded one.
+fn read_reference(path: Option<&std::path::Path>) -> PyResult<ReferenceFace> {
+    match path {
+        Some(path) => ReferenceFace::read(path).map_err(|e| SplinefaceError::new_err(e.to_string())),
+        None => Ok(ReferenceFace::embedded().clone()),
+    }
 }
 
 /// The pipeline's options from `reconstruct`'s keyword settings (those of
@@ -763,24 +766,20 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
         .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))
 }
 
-/// Where `reconstruct`'s landmarks come from: a model path or a loaded `Landmarker`.
-fn model_of(
-    value: Option<&Bound<'_, PyAny>>,
-    py: Python<'_>,
-) -> PyResult<Option<(Arc<ShapePredictor>, String)>> {
+/// Where `reconstruct`'s landmarks come from: a model path (loaded here) or a loaded
+/// `Landmarker`.
+fn model_of(value: Option<&Bound<'_, PyAny>>, py: Python<'_>) -> PyResult<Option<Landmarker>> {
     let Some(value) = value else { return Ok(None) };
     if value.is_none() {
         return Ok(None);
     }
     if let Ok(landmarker) = value.cast::<Landmarker>() {
-        let l = landmarker.get();
-        return Ok(Some((l.model.clone(), l.identity.clone())));
+        return Ok(Some(landmarker.get().clone()));
     }
     let path: PathBuf = value
         .extract()
         .map_err(|_| PyTypeError::new_err("landmark_model: a path or a splineface.Landmarker"))?;
-    let landmarker = Landmarker::new(py, path)?;
-    Ok(Some((landmarker.model, landmarker.identity)))
+    Landmarker::new(py, path).map(Some)
 }
 
 /// The photo paths of `photos`: a folder, one path, or a sequence of paths.
@@ -829,9 +828,9 @@ fn reconstruct(
         )));
     }
     let model_start = std::time::Instant::now();
-    let model = model_of(landmark_model, py)?.map(|(model, _)| model);
+    let model = model_of(landmark_model, py)?.map(|landmarker| landmarker.model);
     let model_seconds = model.as_ref().map(|_| model_start.elapsed().as_secs_f64());
-    let (reference, _) = read_reference(reference.as_deref())?;
+    let reference = read_reference(reference.as_deref())?;
     let error = |e: &dyn std::fmt::Display| SplinefaceError::new_err(e.to_string());
     type Built = (
         PhotoSet,
@@ -963,10 +962,12 @@ fn reconstruct_subject<'py>(
         )));
     }
     let (model, model_identity) = match model_of(landmark_model, py)? {
-        Some((model, identity)) => (Some(model), identity),
+        Some(landmarker) => (Some(landmarker.model.clone()), landmarker.identity()?),
         None => (None, "none".to_owned()),
     };
-    let (reference, reference_identity) = read_reference(reference.as_deref())?;
+    let reference_identity = splineface::batch::file_identity(reference.as_deref())
+        .map_err(|e| SplinefaceError::new_err(e.to_string()))?;
+    let reference = read_reference(reference.as_deref())?;
     let subject = splineface::batch::Subject { name, folder };
     let row = py.detach(|| {
         let job = splineface::batch::BatchJob {

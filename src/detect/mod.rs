@@ -441,9 +441,26 @@ pub fn landmark_subject(
     model: &crate::landmarker::ShapePredictor,
     image: &image::DynamicImage,
 ) -> Result<LandmarkedFace, String> {
+    landmark_subject_timed(model, image).map(|(found, _)| found)
+}
+
+/// [`landmark_subject`], with the seconds its detection and its landmarks took.
+///
+/// # Errors
+/// As [`landmark_subject`].
+pub fn landmark_subject_timed(
+    model: &crate::landmarker::ShapePredictor,
+    image: &image::DynamicImage,
+) -> Result<(LandmarkedFace, [f64; 2]), String> {
+    let start = std::time::Instant::now();
     let (face, note) = subject_face(&detect_subject_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
+    let detection = start.elapsed().as_secs_f64();
+    let start = std::time::Instant::now();
     let found = landmark_face(model, &image.to_rgb8(), face)?;
-    Ok(LandmarkedFace { note, ..found })
+    Ok((
+        LandmarkedFace { note, ..found },
+        [detection, start.elapsed().as_secs_f64()],
+    ))
 }
 
 #[cfg(test)]

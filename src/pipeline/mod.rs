@@ -22,7 +22,7 @@
 //!    `surface.json`, `surface.step`,
 //!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, `aligned/*.png` after RASL, and
 //!    `consistency.png` after the refinement. Each photo's camera and the face's points seen by
-//!    it are kept ([`Reconstruction::photo_fits`]); the command line draws them on the photos
+//!    it are kept ([`Reconstruction::photo_fits`]); [`PhotoSet::files`] draws them on the photos
 //!    and adds the page ([`crate::report`]: `overlays/`, `landmarks/`, `report.html`).
 //!
 //! Everything is computed before anything is written, so a caller can write the files all or

@@ -188,10 +188,10 @@ pub fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<Real>>)
     Ok((points, raw))
 }
 
-/// Detects the faces in a photo and landmarks the subject's (as
-/// [`crate::detect::landmark_subject`]): its 40 points named `name`, the detector's answer
-/// (box, 68 points, a note when smaller faces were ignored), and the seconds the detection and
-/// the landmarks took.
+/// Detects the faces in a photo and landmarks the subject's
+/// ([`crate::detect::landmark_subject_timed`]): its 40 points named `name`, the detector's
+/// answer (box, 68 points, a note when smaller faces were ignored), and the seconds the
+/// detection and the landmarks took.
 ///
 /// # Errors
 /// Why no subject was landmarked, in words.
@@ -200,15 +200,9 @@ pub fn landmark_photo(
     image: &image::DynamicImage,
     name: &str,
 ) -> Result<(PhotoPoints, LandmarkedFace, [f64; 2]), String> {
-    let start = Instant::now();
-    let faces = crate::detect::detect_subject_faces(&image.to_luma8());
-    let (face, note) = crate::detect::subject_face(&faces).map_err(|e| e.to_string())?;
-    let detection = start.elapsed().as_secs_f64();
-    let start = Instant::now();
-    let found = crate::detect::landmark_face(model, &image.to_rgb8(), face)?;
-    let found = LandmarkedFace { note, ..found };
+    let (found, seconds) = crate::detect::landmark_subject_timed(model, image)?;
     let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
-    Ok((points, found, [detection, start.elapsed().as_secs_f64()]))
+    Ok((points, found, seconds))
 }
 
 /// The index among `inputs` of the photo named `name` (for
