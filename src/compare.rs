@@ -26,13 +26,21 @@
 //! * `structure_ssim` and `depth_correlation` (with both structures): the multi-substructure SSIM
 //!   of the aligned structures' edge lengths and the correlation of their 40 depths.
 
-use nalgebra::{Matrix3, Point2, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3};
+use std::path::PathBuf;
+
+use nalgebra::{
+    Affine3, Matrix3, Matrix4, Point2, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3,
+};
 use serde::Serialize;
 
 use crate::Real;
+use crate::error::SettingError;
+use crate::face::MeanFace;
+use crate::io::EncodeError;
+use crate::landmarks::read_mesh_structure;
 use crate::mesh::{ClosestPoints, TriangleMesh};
 use crate::reference::ReferenceFace;
-use crate::render::{DepthMap, View, frame_raster};
+use crate::render::{DepthMap, View, encode_depth_exr, frame_raster, heatmap_png, shaded_png};
 use crate::structure::{self, LEFT_EYE_CENTRE, POINT_COUNT, RIGHT_EYE_CENTRE};
 
 /// How a comparison is run.
@@ -44,6 +52,200 @@ pub struct CompareOptions {
     pub heatmap_max: Option<Real>,
     /// ICP iterations at most.
     pub icp_iterations: usize,
+}
+
+impl CompareOptions {
+    /// Checks the options a person gives (`size`, `heatmap_max`), naming the first that
+    /// cannot be used; [`compare`] refuses them too, this says which flag is wrong.
+    ///
+    /// # Errors
+    /// A [`SettingError`] for a size outside 16 to [`crate::render::MAX_SIDE`] or a heatmap
+    /// top that is not a positive number.
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::compare::CompareOptions;
+    ///
+    /// assert!(CompareOptions::default().validate().is_ok());
+    /// let error = CompareOptions { size: 8, ..CompareOptions::default() }.validate().unwrap_err();
+    /// assert_eq!(error.flag_message(), "--size 8: must be between 16 and 8192");
+    /// ```
+    pub fn validate(&self) -> Result<(), SettingError> {
+        if !(16..=crate::render::MAX_SIDE).contains(&self.size) {
+            return Err(SettingError::new(
+                "size",
+                self.size.to_string(),
+                format!("must be between 16 and {}", crate::render::MAX_SIDE),
+            ));
+        }
+        if let Some(max) = self.heatmap_max
+            && !(max > 0.0 && max.is_finite())
+        {
+            return Err(SettingError::new(
+                "max",
+                max.to_string(),
+                "must be a positive number of millimetres",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A length unit of a mesh file's coordinates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LengthUnit {
+    /// Millimetres.
+    #[default]
+    Millimetre,
+    /// Centimetres.
+    Centimetre,
+    /// Metres.
+    Metre,
+}
+
+impl LengthUnit {
+    /// `mm`, `cm` or `m` (any case).
+    pub fn parse(text: &str) -> Option<Self> {
+        match text.to_ascii_lowercase().as_str() {
+            "mm" => Some(LengthUnit::Millimetre),
+            "cm" => Some(LengthUnit::Centimetre),
+            "m" => Some(LengthUnit::Metre),
+            _ => None,
+        }
+    }
+
+    /// Millimetres per unit.
+    pub fn millimetres(self) -> Real {
+        match self {
+            LengthUnit::Millimetre => 1.0,
+            LengthUnit::Centimetre => 10.0,
+            LengthUnit::Metre => 1000.0,
+        }
+    }
+}
+
+/// Two mesh files to compare, as `splineface compare` takes them (see [`compare_files`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshFiles {
+    /// The reconstruction: OBJ, PLY, glTF or GLB.
+    pub reconstruction: PathBuf,
+    /// The ground truth.
+    pub truth: PathBuf,
+    /// Each one's landmark file ([`crate::landmarks::read_mesh_structure`]), to align by
+    /// their structures and score the inner face; without, they are aligned by ICP.
+    pub landmarks: Option<(PathBuf, PathBuf)>,
+    /// The units of the reconstruction's and the truth's coordinates.
+    pub units: (LengthUnit, LengthUnit),
+}
+
+/// [`compare_files`]' answer.
+#[derive(Debug, Clone)]
+pub struct FileComparison {
+    /// The comparison, in millimetres.
+    pub comparison: Comparison,
+    /// The unchanged mean face ([`crate::face::MeanFace`], the embedded reference) scored
+    /// against the same truth the same way, when the landmarks are given.
+    pub mean_face: Option<InnerFaceScore>,
+}
+
+/// Compares two mesh files: reads them and their landmark files, scales both to millimetres,
+/// runs [`compare`], and, with landmarks, scores the embedded mean face the same way
+/// ([`FileComparison::mean_face`]): a reconstruction's figures mean little alone.
+///
+/// # Errors
+/// [`crate::Error::Setting`] for options out of range ([`CompareOptions::validate`]),
+/// [`crate::Error::Mesh`] or [`crate::Error::Landmarks`] naming a file that cannot be read,
+/// [`crate::Error::Compare`] as [`compare`] fails.
+pub fn compare_files(files: &MeshFiles, options: &CompareOptions) -> Result<FileComparison, crate::Error> {
+    options.validate()?;
+    let rec = crate::mesh::read_mesh(&files.reconstruction)?;
+    let truth = crate::mesh::read_mesh(&files.truth)?;
+    let structures = match &files.landmarks {
+        Some((a, b)) => Some((read_mesh_structure(a, &rec)?, read_mesh_structure(b, &truth)?)),
+        None => None,
+    };
+    let (scale_a, scale_b) = (files.units.0.millimetres(), files.units.1.millimetres());
+    let to_mm =
+        |s: Real| Affine3::from_matrix_unchecked(Matrix4::new_nonuniform_scaling(&Vector3::repeat(s)));
+    let rec = rec.transformed(&to_mm(scale_a));
+    let truth = truth.transformed(&to_mm(scale_b));
+    let structures = structures.map(|(a, b)| {
+        (
+            a.iter().map(|p| p * scale_a).collect::<Vec<_>>(),
+            b.iter().map(|p| p * scale_b).collect::<Vec<_>>(),
+        )
+    });
+    let comparison = compare(
+        &rec,
+        &truth,
+        structures.as_ref().map(|(a, b)| (a.as_slice(), b.as_slice())),
+        options,
+    )?;
+    let mean_face = match &structures {
+        Some((_, truth_structure)) => {
+            let mean = MeanFace::new(
+                ReferenceFace::embedded(),
+                crate::face::Units::default(),
+                &crate::face::MeshOptions::default(),
+            )?;
+            Some(
+                inner_face_score(
+                    &mean.mesh,
+                    &truth,
+                    (&mean.photo_structure, truth_structure),
+                    &InnerFaceOptions::default(),
+                )?
+                .score,
+            )
+        }
+        None => None,
+    };
+    Ok(FileComparison {
+        comparison,
+        mean_face,
+    })
+}
+
+impl Comparison {
+    /// The comparison's files, `(path, bytes)`: `heatmap.png` (`|Δz|` in mm on the heatmap's
+    /// scale), with `depth_maps` `reconstruction-depth.exr` and `truth-depth.exr`, the shaded
+    /// `reconstruction.png` and `truth.png`, and `stats.json`: [`CompareStats`] with the keys
+    /// of `extra` added (a key of both takes `extra`'s value).
+    ///
+    /// # Errors
+    /// An [`EncodeError`] (it does not happen for a finished comparison).
+    pub fn files(
+        &self,
+        extra: serde_json::Map<String, serde_json::Value>,
+        depth_maps: bool,
+    ) -> Result<Vec<(PathBuf, Vec<u8>)>, EncodeError> {
+        let (w, h) = (
+            self.reconstruction.raster.width,
+            self.reconstruction.raster.height,
+        );
+        let mut stats = serde_json::to_value(&self.stats).expect("the figures are finite or null");
+        if let serde_json::Value::Object(map) = &mut stats {
+            map.extend(extra);
+        }
+        let mut files = vec![(
+            PathBuf::from("heatmap.png"),
+            heatmap_png(&self.abs_dz, w, h, self.heatmap_max, "mm")?,
+        )];
+        if depth_maps {
+            files.push((
+                "reconstruction-depth.exr".into(),
+                encode_depth_exr(&self.reconstruction)?,
+            ));
+            files.push(("truth-depth.exr".into(), encode_depth_exr(&self.truth)?));
+        }
+        files.push(("reconstruction.png".into(), shaded_png(&self.reconstruction)?));
+        files.push(("truth.png".into(), shaded_png(&self.truth)?));
+        files.push((
+            "stats.json".into(),
+            serde_json::to_vec_pretty(&stats).expect("JSON values serialise"),
+        ));
+        Ok(files)
+    }
 }
 
 impl Default for CompareOptions {
@@ -390,7 +592,12 @@ pub fn compare(
                 rms,
                 iterations,
             };
-            (map, alignment, Similarity3::identity(), 63.0)
+            (
+                map,
+                alignment,
+                Similarity3::identity(),
+                crate::face::DEFAULT_EYE_DISTANCE_MM,
+            )
         }
     };
     let to_view = |p: &Point3<Real>| view_map * p;
@@ -433,7 +640,7 @@ pub fn compare(
         h.max(1),
         0.02,
     )
-    .map_err(CompareError::Option)?;
+    .map_err(|e| CompareError::Option(e.to_string()))?;
     let rec_map = DepthMap::render(&aligned, &front, &raster);
     let truth_map = DepthMap::render(&truth_view, &front, &raster);
 

@@ -12,13 +12,16 @@ use std::sync::OnceLock;
 use nalgebra::{Point2, Point3};
 
 use crate::Real;
-use crate::align::PhotoPoints;
-use crate::face::{Deformation, FaceSurface, MeshOptions};
+use crate::align::{AlignError, PhotoPoints};
+use crate::compare::{CompareError, CompareOptions, Comparison};
+use crate::error::SettingError;
+use crate::face::{Deformation, FaceError, FaceSurface, MeanFace, MeshOptions};
+use crate::io::EncodeError;
 use crate::landmarks::format_pts;
 use crate::mesh::TriangleMesh;
-use crate::pipeline::{Input, PhotoImage};
+use crate::pipeline::{Input, PhotoImage, PhotoRecord, PipelineError, PipelineOptions, Reconstruction};
 use crate::reference::ReferenceFace;
-use crate::render::{View, synthetic_photo};
+use crate::render::{RenderError, View, synthetic_photo};
 use crate::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE};
 
 const SUBJECT: &str = include_str!("../reference/demo-subject.json");
@@ -54,6 +57,33 @@ impl Random {
     }
 }
 
+/// What can stop the demo.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DemoError {
+    /// A setting out of range.
+    #[error(transparent)]
+    Setting(#[from] SettingError),
+    /// The subject's surface could not be made (it does not happen for the embedded subject).
+    #[error("the demo subject: {0}")]
+    Face(#[from] FaceError),
+    /// A photo could not be rendered.
+    #[error("a demo photo: {0}")]
+    Render(#[from] RenderError),
+    /// A photo's points are unusable (they are projected, so it does not happen).
+    #[error("a demo photo's points: {0}")]
+    Points(#[from] AlignError),
+    /// The reconstruction.
+    #[error(transparent)]
+    Pipeline(#[from] PipelineError),
+    /// The comparison with the truth.
+    #[error("comparing with the truth: {0}")]
+    Compare(#[from] CompareError),
+    /// An output could not be encoded.
+    #[error(transparent)]
+    Encode(#[from] EncodeError),
+}
+
 /// How the demo's photos are taken.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SceneOptions {
@@ -75,6 +105,41 @@ impl Default for SceneOptions {
             seed: 2016,
             size: (320, 384),
         }
+    }
+}
+
+impl SceneOptions {
+    /// Checks the options ([`scene`] does too).
+    ///
+    /// # Errors
+    /// [`DemoError::Setting`] for no photos or more than 200, a negative or non-finite noise
+    /// (shown in percent, as the command line and the Python package take it), or a side
+    /// outside 64 to 4096 pixels.
+    pub fn validate(&self) -> Result<(), DemoError> {
+        let options = self;
+        if options.photos == 0 || options.photos > 200 {
+            return Err(
+                SettingError::new("photos", options.photos.to_string(), "between 1 and 200, please").into(),
+            );
+        }
+        if !(options.noise >= 0.0 && options.noise.is_finite()) {
+            return Err(SettingError::new(
+                "noise",
+                (100.0 * options.noise).to_string(),
+                "must be a finite percentage, 0 or more",
+            )
+            .into());
+        }
+        let (width, height) = options.size;
+        if width < 64 || height < 64 || width > 4096 || height > 4096 {
+            return Err(SettingError::new(
+                "size",
+                format!("{width}x{height}"),
+                "each side must be between 64 and 4096",
+            )
+            .into());
+        }
+        Ok(())
     }
 }
 
@@ -101,27 +166,13 @@ pub struct Scene {
 /// ([`ReferenceFace::photo_structure`]), the same definitions the pipeline deforms from.
 ///
 /// # Errors
-/// A message for zero photos, a negative or non-finite noise, or a size under 64 pixels.
-pub fn scene(options: &SceneOptions) -> Result<Scene, String> {
-    if options.photos == 0 || options.photos > 200 {
-        return Err(format!("{} photos: between 1 and 200, please", options.photos));
-    }
-    if !(options.noise >= 0.0 && options.noise.is_finite()) {
-        return Err(format!("noise {} must be non-negative", options.noise));
-    }
+/// As [`SceneOptions::validate`].
+pub fn scene(options: &SceneOptions) -> Result<Scene, DemoError> {
+    options.validate()?;
     let (width, height) = options.size;
-    if width < 64 || height < 64 || width > 4096 || height > 4096 {
-        return Err(format!(
-            "photos of {width}×{height}: each side must be between 64 and 4096"
-        ));
-    }
     let subject = subject();
-    let face =
-        FaceSurface::deform(subject, subject.structure(), Deformation::Affine).map_err(|e| e.to_string())?;
-    let mesh = face
-        .mesh(&MeshOptions { spacing: 0.75 })
-        .map_err(|e| e.to_string())?
-        .mesh;
+    let face = FaceSurface::deform(subject, subject.structure(), Deformation::Affine)?;
+    let mesh = face.mesh(&MeshOptions { spacing: 0.75 })?.mesh;
     let reference = ReferenceFace::embedded();
     let seen: Vec<Point3<Real>> = subject
         .structure()
@@ -173,7 +224,7 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, String> {
             ])
         });
         inputs.push(Input {
-            points: PhotoPoints::new(format!("photo{:02}", k + 1), points).map_err(|e| e.to_string())?,
+            points: PhotoPoints::new(format!("photo{:02}", k + 1), points)?,
             image: Some(PhotoImage { grey, colour }),
         });
         poses.push(pose);
@@ -192,15 +243,15 @@ impl Scene {
     /// on them.
     ///
     /// # Errors
-    /// The PNG encoder's message.
-    pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, String> {
+    /// An [`EncodeError`] (it does not happen for a scene that was made).
+    pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, EncodeError> {
         let mut files = Vec::new();
         for input in &self.inputs {
             let name = &input.points.name;
             if let Some(image) = &input.image {
                 files.push((
                     PathBuf::from(format!("{name}.png")),
-                    crate::export::encode_png(&image.colour)?,
+                    crate::io::encode_png(&image.colour)?,
                 ));
             }
             files.push((
@@ -208,6 +259,116 @@ impl Scene {
                 format_pts(&input.points.points).into_bytes(),
             ));
         }
+        Ok(files)
+    }
+}
+
+/// A demo run: the scene reconstructed with the embedded reference, and the reconstruction and
+/// the unchanged mean face each compared with the truth ([`crate::compare::compare`], in the
+/// output units).
+#[derive(Debug, Clone)]
+pub struct Demo {
+    /// The photos and the truth.
+    pub scene: Scene,
+    /// The reconstruction.
+    pub reconstruction: Reconstruction,
+    /// The reconstruction against the truth.
+    pub comparison: Comparison,
+    /// The mean face ([`MeanFace`]) against the truth: the baseline.
+    pub baseline: Comparison,
+}
+
+impl Demo {
+    /// Reconstructs `scene` with `options` and compares the result and the mean face with the
+    /// truth, reporting each stage to `progress`.
+    ///
+    /// # Errors
+    /// [`DemoError::Pipeline`] as [`crate::pipeline::reconstruct`] fails, [`DemoError::Face`] for
+    /// a mesh spacing out of range, [`DemoError::Compare`] as the comparison fails.
+    pub fn run(
+        scene: Scene,
+        options: &PipelineOptions,
+        mut progress: impl FnMut(&str),
+    ) -> Result<Self, DemoError> {
+        let reference = ReferenceFace::embedded();
+        let reconstruction = crate::pipeline::reconstruct(&scene.inputs, reference, options, &mut progress)?;
+        progress("comparing with the truth");
+        let units = options.units;
+        let truth_mesh = scene.truth_mesh.transformed(&units.transform());
+        let scale = units.per_canonical_unit();
+        let truth_structure: Vec<_> = scene.truth_structure.iter().map(|p| p * scale).collect();
+        let comparison = crate::compare::compare(
+            &reconstruction.output_mesh(),
+            &truth_mesh,
+            Some((&reconstruction.structure(), &truth_structure)),
+            &CompareOptions::default(),
+        )?;
+        // Its landmarks as the photo path places them, like the reconstruction's and the truth's.
+        let mean = MeanFace::new(reference, units, &options.mesh)?;
+        let baseline = crate::compare::compare(
+            &mean.mesh,
+            &truth_mesh,
+            Some((&mean.photo_structure, &truth_structure)),
+            &CompareOptions::default(),
+        )?;
+        Ok(Demo {
+            scene,
+            reconstruction,
+            comparison,
+            baseline,
+        })
+    }
+
+    /// Every output file, `(path, bytes)`: the photos and their points in `photos/`, the
+    /// reconstruction's files in `reconstruction/` (as `splineface reconstruct` writes them,
+    /// with the landmark overlays), the comparison in `compare/` (its `stats.json` with the
+    /// mean face's figures as `baseline_mean_face`), and `report.html`. Overlays that cannot be
+    /// drawn are left out with a note in `warnings`.
+    ///
+    /// # Errors
+    /// An [`EncodeError`] or [`PipelineError::Encode`] (neither happens for a finished run).
+    pub fn files(&self, warnings: &mut Vec<String>) -> Result<Vec<(PathBuf, Vec<u8>)>, DemoError> {
+        let in_folder = |folder: &str, files: Vec<(PathBuf, Vec<u8>)>| {
+            files
+                .into_iter()
+                .map(move |(p, b)| (std::path::Path::new(folder).join(p), b))
+                .collect::<Vec<_>>()
+        };
+        let mut files = in_folder("photos", self.scene.files()?);
+        let records: Vec<PhotoRecord> = self
+            .scene
+            .inputs
+            .iter()
+            .map(|input| PhotoRecord::given(&input.points.name, input.points.points.clone()))
+            .collect();
+        let mut reconstruction = self.reconstruction.files()?;
+        reconstruction.extend(crate::pipeline::photo_files(
+            &records,
+            std::path::Path::new("landmarks"),
+            &self.scene.inputs,
+            Some(&self.reconstruction),
+            warnings,
+        ));
+        files.extend(in_folder("reconstruction", reconstruction));
+        let mut extra = serde_json::Map::new();
+        extra.insert(
+            "baseline_mean_face".into(),
+            serde_json::to_value(&self.baseline.stats).expect("the figures are finite or null"),
+        );
+        extra.insert("units".into(), self.reconstruction.options.units.name().into());
+        files.extend(in_folder("compare", self.comparison.files(extra, false)?));
+        let page = crate::report::report_page(
+            &files,
+            &crate::report::PageOptions {
+                title: format!(
+                    "splineface demo: {} photos of the demo subject",
+                    self.scene.inputs.len()
+                ),
+                reconstruction: "reconstruction".into(),
+                comparison: Some("compare".into()),
+            },
+        );
+        files.push(("report.html".into(), page.into_bytes()));
         Ok(files)
     }
 }

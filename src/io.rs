@@ -81,7 +81,7 @@ pub fn read_input(path: &Path, limit: u64) -> std::io::Result<Vec<u8>> {
 /// # Errors
 /// A message naming UTF-16 (which some Windows tools write) or the first byte that is not
 /// UTF-8.
-pub fn utf8_text(bytes: &[u8]) -> Result<&str, String> {
+pub(crate) fn utf8_text(bytes: &[u8]) -> Result<&str, String> {
     let bytes = bytes.strip_prefix(b"\xef\xbb\xbf").unwrap_or(bytes);
     if bytes.starts_with(b"\xff\xfe") || bytes.starts_with(b"\xfe\xff") {
         return Err("the text is UTF-16; save it as UTF-8".to_owned());
@@ -269,6 +269,28 @@ pub enum OutputError {
         /// Why.
         error: std::io::Error,
     },
+    /// An output file's path is a folder.
+    #[error("{}: is a directory", path.display())]
+    IsADirectory {
+        /// The output file.
+        path: PathBuf,
+    },
+    /// An output file's folder does not exist.
+    #[error("{}: the directory {} does not exist", path.display(), directory.display())]
+    NoSuchDirectory {
+        /// The output file.
+        path: PathBuf,
+        /// Its folder.
+        directory: PathBuf,
+    },
+    /// An output file's folder is a file.
+    #[error("{}: {} is not a directory", path.display(), directory.display())]
+    ParentNotADirectory {
+        /// The output file.
+        path: PathBuf,
+        /// Its would-be folder.
+        directory: PathBuf,
+    },
     /// A folder could not be created.
     #[error("cannot create {}: {error}", path.display())]
     CreateDirectory {
@@ -325,6 +347,40 @@ pub fn check_output_dir(out: &Path) -> Result<(), OutputError> {
     })
 }
 
+/// Checks, before any work, that the output file `path` can be written: it is not a folder,
+/// its folder exists and a file can be made in it.
+///
+/// # Errors
+/// [`OutputError::IsADirectory`], [`OutputError::NoSuchDirectory`],
+/// [`OutputError::ParentNotADirectory`] or [`OutputError::NotWritable`].
+pub fn check_output_file(path: &Path) -> Result<(), OutputError> {
+    let path_buf = || path.to_path_buf();
+    if path.is_dir() {
+        return Err(OutputError::IsADirectory { path: path_buf() });
+    }
+    let directory = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !directory.exists() {
+        return Err(OutputError::NoSuchDirectory {
+            path: path_buf(),
+            directory: directory.to_path_buf(),
+        });
+    }
+    if !directory.is_dir() {
+        return Err(OutputError::ParentNotADirectory {
+            path: path_buf(),
+            directory: directory.to_path_buf(),
+        });
+    }
+    probe_writable(directory).map_err(|error| OutputError::NotWritable {
+        path: path_buf(),
+        directory: directory.to_path_buf(),
+        error,
+    })
+}
+
 /// Makes and removes an empty file in `directory`: whether files can be made there.
 ///
 /// # Errors
@@ -363,4 +419,50 @@ pub fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<(), Output
     }
     let absolute: Vec<(PathBuf, Vec<u8>)> = files.iter().map(|(p, b)| (out.join(p), b.clone())).collect();
     write_files_atomically(&absolute).map_err(|(path, error)| OutputError::Write { path, error })
+}
+
+/// A file that could not be encoded in memory: data the format cannot hold (a heatmap whose
+/// values do not fill its size), or an encoder's own failure, which does not happen for valid
+/// data.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{format}: {message}")]
+pub struct EncodeError {
+    /// The format: `PNG`, `EXR`, ….
+    pub format: &'static str,
+    /// Why.
+    pub message: String,
+}
+
+impl EncodeError {
+    /// A `format` file that could not be encoded, and why.
+    pub fn new(format: &'static str, message: impl std::fmt::Display) -> Self {
+        EncodeError {
+            format,
+            message: message.to_string(),
+        }
+    }
+}
+
+/// Encodes an image (RGB, RGBA or grey, 8 or 16 bits) as PNG, with the `image` crate's
+/// default compression. The bytes are the same on every run.
+///
+/// # Errors
+/// The encoder's message (it does not fail for an image in memory).
+///
+/// # Examples
+/// ```
+/// let image = image::RgbImage::from_pixel(4, 3, image::Rgb([200, 120, 40]));
+/// let png = splineface::io::encode_png(&image).unwrap();
+/// assert!(png.starts_with(b"\x89PNG"));
+/// ```
+pub fn encode_png<P>(image: &image::ImageBuffer<P, Vec<P::Subpixel>>) -> Result<Vec<u8>, EncodeError>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+{
+    let mut bytes = Vec::new();
+    image
+        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
+        .map_err(|e| EncodeError::new("PNG", e))?;
+    Ok(bytes)
 }

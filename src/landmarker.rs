@@ -152,6 +152,10 @@ pub enum ModelProblem {
     /// The bytes end early.
     #[error("truncated at byte {0}: not a complete dlib shape_predictor file")]
     Truncated(usize),
+    /// A `.dat` was expected and the file is already in the compact form
+    /// ([`write_compact`]).
+    #[error("it is already in the compact form")]
+    AlreadyCompact,
     /// Something is malformed.
     #[error("at byte {at}: {message}")]
     Malformed {
@@ -871,4 +875,49 @@ fn r_malformed<R>(r: &CompactReader<R>, message: &str) -> ModelProblem {
         at: r.at as usize,
         message: message.to_owned(),
     }
+}
+
+/// What [`write_compact`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Compacted {
+    /// The compact file was written.
+    Written,
+    /// The compact file was already there, made from these very bytes: nothing was written.
+    UpToDate,
+}
+
+/// Writes the compact form of dlib's `.dat` model `model` to `out` (`splineface compact-model`),
+/// unless `out` already holds the compact form of the same bytes. Written whole or not at all.
+///
+/// # Errors
+/// [`crate::Error::Output`] when `out` cannot be written, [`crate::Error::Model`] for a model
+/// that cannot be read or parsed or that is already compact.
+pub fn write_compact(model: &Path, out: &Path) -> Result<Compacted, crate::Error> {
+    let error = |problem| ModelError {
+        file: model.to_path_buf(),
+        problem,
+    };
+    crate::io::check_output_file(out)?;
+    let dat = crate::io::read_input(model, crate::io::MAX_DATA_INPUT_BYTES)
+        .map_err(|e| error(ModelProblem::Io(e.to_string())))?;
+    if dat.starts_with(COMPACT_MAGIC) {
+        return Err(error(ModelProblem::AlreadyCompact).into());
+    }
+    let source = ModelSource::of(&dat);
+    if let Ok(file) = std::fs::File::open(out)
+        && let Ok(length) = file.metadata().map(|m| m.len())
+        && let Ok((_, recorded)) = ShapePredictor::read_compact(std::io::BufReader::new(file), length)
+        && recorded == source
+    {
+        return Ok(Compacted::UpToDate);
+    }
+    let predictor = ShapePredictor::parse(&dat).map_err(error)?;
+    drop(dat);
+    crate::io::write_atomically(out, &predictor.to_compact(source)).map_err(|e| {
+        crate::io::OutputError::Write {
+            path: out.to_path_buf(),
+            error: e,
+        }
+    })?;
+    Ok(Compacted::Written)
 }

@@ -376,6 +376,28 @@ fn structure<const D: usize>(
     })
 }
 
+/// The 40-point 3D structure of a scan from its landmark file: a JSON landmark file with 3D
+/// points (68 iBUG or the structure's 40; see [`parse_landmarks_json`]), or, for any other
+/// extension, a list of 68 vertex indices into `mesh` ([`read_vertex_indices`]) whose positions
+/// are the iBUG points.
+///
+/// # Errors
+/// A [`LandmarkError`] naming the file: unreadable, malformed, 2D points, or an index out of
+/// the mesh's range.
+pub fn read_mesh_structure(
+    path: &Path,
+    mesh: &crate::mesh::TriangleMesh,
+) -> Result<Vec<Point3<Real>>, LandmarkError> {
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        return read_landmarks_json(path)?
+            .structure_3d()
+            .map_err(|problem| error(path, problem));
+    }
+    let indices = read_vertex_indices(path, crate::structure::IBUG_POINT_COUNT, mesh.positions().len())?;
+    let points: Vec<_> = indices.iter().map(|&i| mesh.positions()[i]).collect();
+    structure(&points, Scheme::Ibug68).map_err(|problem| error(path, problem))
+}
+
 /// Reads a JSON landmark file (the form is on [`parse_landmarks_json`]).
 ///
 /// # Errors

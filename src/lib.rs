@@ -72,6 +72,7 @@ pub mod compare;
 pub mod demo;
 pub mod depth;
 pub mod detect;
+pub mod error;
 pub mod export;
 pub mod face;
 pub mod io;
@@ -83,6 +84,8 @@ pub mod reference;
 pub mod render;
 pub mod report;
 pub mod structure;
+
+pub use error::Error;
 
 /// The scalar type of all geometry.
 pub type Real = f64;

@@ -5,22 +5,16 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use nalgebra::{Affine3, Matrix4, Point3, Vector3};
 use splineface::bspline::BSplineSurface;
-use splineface::compare::CompareOptions;
-use splineface::face::{Deformation, FaceSpace, Units};
-use splineface::landmarks::{read_landmarks_json, read_vertex_indices};
-use splineface::mesh::{TriangleMesh, read_mesh};
-use splineface::pipeline::{
-    Input, InputError, PhotoRecord, PipelineOptions, gather_inputs, has_extension, photo_files, photo_list,
-    photo_stem, reconstruct,
-};
-use splineface::reference::ReferenceFace;
-use splineface::reference::{ReferenceOptions, ReferenceScan, ReferenceSource, build_reference, fnv1a64};
+use splineface::compare::{CompareOptions, FileComparison, LengthUnit, MeshFiles, compare_files};
+use splineface::face::Units;
+use splineface::face::modes::ModeFiles;
+use splineface::mesh::read_mesh;
+use splineface::pipeline::{Input, InputError, PipelineOptions, gather_inputs, photo_list, reconstruct};
+use splineface::reference::{ReferenceFace, ReferenceOptions, ReferenceScan, build_reference};
 use splineface::render::{
-    DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, heatmap_png, shaded_png,
+    DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png,
 };
-use splineface::structure::{IBUG_POINT_COUNT, from_ibug68, unify};
 
 /// Smooth 3D faces from uncalibrated photos: B-spline surfaces, meshes and depth maps.
 #[derive(Parser)]
@@ -459,11 +453,16 @@ fn run(cli: Cli) -> Result<()> {
             size,
             max,
         } => compare(&CompareArgs {
-            reconstruction,
-            truth,
+            files: MeshFiles {
+                reconstruction,
+                truth,
+                landmarks: reconstruction_landmarks.zip(truth_landmarks),
+                units: (
+                    length_unit(&reconstruction_units, "--reconstruction-units")?,
+                    length_unit(&truth_units, "--truth-units")?,
+                ),
+            },
             out,
-            landmarks: reconstruction_landmarks.zip(truth_landmarks),
-            units: (reconstruction_units, truth_units),
             options: CompareOptions {
                 size,
                 heatmap_max: max,
@@ -515,7 +514,7 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
     let start = std::time::Instant::now();
     let map = DepthMap::render(&mesh, &view, &raster);
     let elapsed = start.elapsed();
-    let encode_error = |e: splineface::render::DepthFileError| anyhow::anyhow!("{}: {e}", out.display());
+    let encode_error = |e: splineface::io::EncodeError| anyhow::anyhow!("{}: {e}", out.display());
     let bytes = if exr {
         encode_depth_exr(&map)
     } else {
@@ -548,33 +547,9 @@ fn check_output_dir(out: &Path) -> Result<()> {
     Ok(splineface::io::check_output_dir(out)?)
 }
 
-/// Checks, before any work, that an output file can be written: its directory exists and a
-/// file can be made in it, and the path itself is not a directory.
+/// [`splineface::io::check_output_file`].
 fn check_output_file(path: &Path) -> Result<()> {
-    if path.is_dir() {
-        bail!("{}: is a directory", path.display());
-    }
-    let directory = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    if !directory.exists() {
-        bail!(
-            "{}: the directory {} does not exist",
-            path.display(),
-            directory.display()
-        );
-    }
-    if !directory.is_dir() {
-        bail!("{}: {} is not a directory", path.display(), directory.display());
-    }
-    probe_writable(directory).with_context(|| format!("{}: cannot write there", path.display()))
-}
-
-/// Makes and removes an empty file in `directory`.
-fn probe_writable(directory: &Path) -> Result<()> {
-    splineface::io::probe_writable(directory)
-        .with_context(|| format!("cannot create a file in {}", directory.display()))
+    Ok(splineface::io::check_output_file(path)?)
 }
 
 fn write_files(files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
@@ -582,136 +557,38 @@ fn write_files(files: &[(PathBuf, Vec<u8>)]) -> Result<()> {
         .map_err(|(path, e)| anyhow::anyhow!("cannot write {}: {e}", path.display()))
 }
 
-/// Millimetres per unit.
-fn units_to_mm(text: &str, flag: &str) -> Result<f64> {
-    match text.to_ascii_lowercase().as_str() {
-        "mm" => Ok(1.0),
-        "cm" => Ok(10.0),
-        "m" => Ok(1000.0),
-        _ => bail!("{flag} `{text}`: expected mm, cm or m"),
-    }
-}
-
-/// A 40-point 3D structure from a landmark file: JSON with 3D points (68 or 40), or 68 vertex
-/// indices into `mesh`.
-fn read_structure(path: &Path, mesh: &TriangleMesh) -> Result<Vec<Point3<f64>>> {
-    let is_json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
-    if is_json {
-        return read_landmarks_json(path)?
-            .structure_3d()
-            .with_context(|| format!("{}: 3D landmarks are needed", path.display()));
-    }
-    let indices = read_vertex_indices(path, IBUG_POINT_COUNT, mesh.positions().len())?;
-    let points: Vec<_> = indices.iter().map(|&i| mesh.positions()[i]).collect();
-    from_ibug68(&points).with_context(|| format!("{}", path.display()))
+/// `--reconstruction-units` and `--truth-units`.
+fn length_unit(text: &str, flag: &str) -> Result<LengthUnit> {
+    LengthUnit::parse(text).with_context(|| format!("{flag} `{text}`: expected mm, cm or m"))
 }
 
 struct CompareArgs {
-    reconstruction: PathBuf,
-    truth: PathBuf,
+    files: MeshFiles,
     out: PathBuf,
-    landmarks: Option<(PathBuf, PathBuf)>,
-    units: (String, String),
     options: CompareOptions,
 }
 
 fn compare(args: &CompareArgs) -> Result<()> {
-    let scale_a = units_to_mm(&args.units.0, "--reconstruction-units")?;
-    let scale_b = units_to_mm(&args.units.1, "--truth-units")?;
-    if !(16..=MAX_SIDE).contains(&args.options.size) {
-        bail!("--size {} must be between 16 and {MAX_SIDE}", args.options.size);
-    }
-    if let Some(max) = args.options.heatmap_max
-        && !(max > 0.0 && max.is_finite())
-    {
-        bail!("--max {max} must be a positive number of millimetres");
-    }
+    args.options
+        .validate()
+        .map_err(|e| anyhow::anyhow!(e.flag_message()))?;
     check_output_dir(&args.out)?;
-    let rec = read_mesh(&args.reconstruction)?;
-    let truth = read_mesh(&args.truth)?;
-    let structures = match &args.landmarks {
-        Some((a, b)) => Some((read_structure(a, &rec)?, read_structure(b, &truth)?)),
-        None => None,
-    };
-    let to_mm = |s: f64| Affine3::from_matrix_unchecked(Matrix4::new_nonuniform_scaling(&Vector3::repeat(s)));
-    let rec = rec.transformed(&to_mm(scale_a));
-    let truth = truth.transformed(&to_mm(scale_b));
-    let structures = structures.map(|(a, b)| {
-        (
-            a.iter().map(|p| p * scale_a).collect::<Vec<_>>(),
-            b.iter().map(|p| p * scale_b).collect::<Vec<_>>(),
-        )
-    });
     let start = std::time::Instant::now();
-    let result = splineface::compare::compare(
-        &rec,
-        &truth,
-        structures.as_ref().map(|(a, b)| (a.as_slice(), b.as_slice())),
-        &args.options,
-    )?;
-    // The unchanged mean face (the embedded reference, 63 mm between its eye centres), scored
-    // the same way: a reconstruction's figures mean little alone.
-    let mean_face = match &structures {
-        Some((_, truth_structure)) => {
-            let reference = ReferenceFace::embedded();
-            let units = splineface::face::Units::default();
-            let mesh =
-                splineface::face::FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?
-                    .mesh(&splineface::face::MeshOptions::default())?
-                    .mesh
-                    .transformed(&units.transform());
-            let points: Vec<_> = reference
-                .photo_structure()
-                .iter()
-                .map(|p| p * units.per_canonical_unit())
-                .collect();
-            Some(
-                splineface::compare::inner_face_score(
-                    &mesh,
-                    &truth,
-                    (&points, truth_structure),
-                    &splineface::compare::InnerFaceOptions::default(),
-                )?
-                .score,
-            )
-        }
-        None => None,
-    };
+    let FileComparison {
+        comparison: result,
+        mean_face,
+    } = compare_files(&args.files, &args.options)?;
     let elapsed = start.elapsed();
-    let (w, h) = (
-        result.reconstruction.raster.width,
-        result.reconstruction.raster.height,
+    let mut extra = serde_json::Map::new();
+    extra.insert(
+        "reconstruction".into(),
+        args.files.reconstruction.display().to_string().into(),
     );
-    let encode =
-        |r: Result<Vec<u8>, splineface::render::DepthFileError>| r.map_err(|e| anyhow::anyhow!("{e}"));
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    let mut stats = serde_json::to_value(&result.stats)?;
-    stats["reconstruction"] = args.reconstruction.display().to_string().into();
-    stats["truth"] = args.truth.display().to_string().into();
-    stats["units"] = "mm".into();
-    stats["heatmap_max"] = result.heatmap_max.into();
-    stats["inner_face_mean_face"] = serde_json::to_value(mean_face)?;
-    let files = vec![
-        (
-            args.out.join("heatmap.png"),
-            encode(heatmap_png(&result.abs_dz, w, h, result.heatmap_max, "mm"))?,
-        ),
-        (
-            args.out.join("reconstruction-depth.exr"),
-            encode(encode_depth_exr(&result.reconstruction))?,
-        ),
-        (
-            args.out.join("truth-depth.exr"),
-            encode(encode_depth_exr(&result.truth))?,
-        ),
-        (
-            args.out.join("reconstruction.png"),
-            encode(shaded_png(&result.reconstruction))?,
-        ),
-        (args.out.join("truth.png"), encode(shaded_png(&result.truth))?),
-        (args.out.join("stats.json"), serde_json::to_vec_pretty(&stats)?),
-    ];
-    write_files(&files)?;
+    extra.insert("truth".into(), args.files.truth.display().to_string().into());
+    extra.insert("units".into(), "mm".into());
+    extra.insert("heatmap_max".into(), result.heatmap_max.into());
+    extra.insert("inner_face_mean_face".into(), serde_json::to_value(mean_face)?);
+    write_into(&args.out, &result.files(extra, true)?)?;
     let s = &result.stats;
     println!("{}", args.out.display());
     println!(
@@ -780,109 +657,6 @@ fn inspect(path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn file_name(path: &Path) -> String {
-    path.file_name().map_or_else(
-        || path.display().to_string(),
-        |n| n.to_string_lossy().into_owned(),
-    )
-}
-
-/// `fit-reference`'s face-space inputs: displacement-field files of the scan.
-struct ModeFiles {
-    identity: PathBuf,
-    /// The expression fields and their names.
-    expressions: Option<(PathBuf, PathBuf)>,
-    note: String,
-}
-
-/// Displacement fields `[mode][vertex][3]` (little-endian `f32`) of a scan of `vertices`
-/// vertices, mapped into the canonical frame by `to_canonical` (its rotation and scale).
-fn read_fields(
-    path: &Path,
-    vertices: usize,
-    to_canonical: &nalgebra::Similarity3<f64>,
-) -> Result<Vec<Vec<nalgebra::Vector3<f64>>>> {
-    let bytes = splineface::io::read_input(path, splineface::io::MAX_LARGE_INPUT_BYTES)
-        .with_context(|| format!("cannot read {}", path.display()))?;
-    let per_mode = vertices * 12;
-    if bytes.is_empty() || bytes.len() % per_mode != 0 {
-        bail!(
-            "{}: {} bytes is not a whole number of modes of {vertices} vertices × 3 float32 ({per_mode} bytes each)",
-            path.display(),
-            bytes.len()
-        );
-    }
-    let mut fields = Vec::with_capacity(bytes.len() / per_mode);
-    for (k, mode) in bytes.chunks_exact(per_mode).enumerate() {
-        let mut field = Vec::with_capacity(vertices);
-        for (v, d) in mode.chunks_exact(12).enumerate() {
-            let c = |i: usize| f64::from(f32::from_le_bytes([d[i], d[i + 1], d[i + 2], d[i + 3]]));
-            let vector = nalgebra::Vector3::new(c(0), c(4), c(8));
-            if !vector.iter().all(|x| x.is_finite()) {
-                bail!(
-                    "{}: mode {k}, vertex {v}: the displacement is not finite",
-                    path.display()
-                );
-            }
-            field.push(to_canonical * vector);
-        }
-        fields.push(field);
-    }
-    Ok(fields)
-}
-
-/// The reference with a face space built from `modes`, displacement fields of its single
-/// scan with 68 landmark vertex indices in `landmark_path`.
-fn with_modes(
-    reference: ReferenceFace,
-    scan: &ReferenceScan,
-    landmark_path: &Path,
-    modes: &ModeFiles,
-) -> Result<ReferenceFace> {
-    let mesh = &scan.mesh;
-    let vertices = mesh.positions().len();
-    if has_extension(landmark_path, &["json"]) {
-        bail!(
-            "{}: the face space's modes need the landmarks as 68 vertex indices (to move them with the modes), not a JSON landmark file",
-            landmark_path.display()
-        );
-    }
-    // The indices again (the structure was read from them): the modes move those vertices.
-    let landmarks = read_vertex_indices(landmark_path, IBUG_POINT_COUNT, vertices)?;
-    let (to_canonical, _) = unify(&scan.structure)?;
-    let scan = mesh.transformed(&nalgebra::convert(to_canonical));
-    let identity = read_fields(&modes.identity, vertices, &to_canonical)?;
-    let sigma = vec![1.0; identity.len()];
-    let mut space = FaceSpace::from_displacements(&reference, &scan, &landmarks, &identity, &sigma)
-        .with_context(|| format!("{}", modes.identity.display()))?;
-    if let Some((fields_path, names_path)) = &modes.expressions {
-        let fields = read_fields(fields_path, vertices, &to_canonical)?;
-        let text = splineface::io::read_input_text(names_path, splineface::io::MAX_DATA_INPUT_BYTES)
-            .with_context(|| format!("cannot read {}", names_path.display()))?;
-        let names: Vec<String> = text
-            .lines()
-            .map(str::trim)
-            .filter(|l| !l.is_empty() && !l.starts_with('#'))
-            .map(str::to_owned)
-            .collect();
-        if names.len() != fields.len() {
-            bail!(
-                "{}: {} names for the {} expression modes of {}",
-                names_path.display(),
-                names.len(),
-                fields.len(),
-                fields_path.display()
-            );
-        }
-        space = space
-            .with_expression_displacements(&reference, &scan, &landmarks, &names, &fields, &modes.note)
-            .with_context(|| format!("{}", fields_path.display()))?;
-    }
-    reference
-        .with_space(Some(space.to_modes(&modes.note)))
-        .map_err(anyhow::Error::msg)
-}
-
 fn fit_reference(
     meshes: &[PathBuf],
     landmarks: &[PathBuf],
@@ -907,24 +681,11 @@ fn fit_reference(
     }
     options.validate()?;
     check_output_file(out)?;
-    let mut scans = Vec::with_capacity(meshes.len());
-    for (mesh_path, landmark_path) in meshes.iter().zip(landmarks) {
-        let mesh = read_mesh(mesh_path)?;
-        let bytes = splineface::io::read_input(mesh_path, splineface::io::MAX_LARGE_INPUT_BYTES)
-            .with_context(|| format!("cannot read {}", mesh_path.display()))?;
-        let structure = read_structure(landmark_path, &mesh)?;
-        scans.push(ReferenceScan {
-            source: ReferenceSource {
-                mesh: file_name(mesh_path),
-                mesh_fnv1a64: fnv1a64(&bytes),
-                landmarks: file_name(landmark_path),
-                vertices: mesh.positions().len(),
-                triangles: mesh.triangles().len(),
-            },
-            mesh,
-            structure,
-        });
-    }
+    let scans = meshes
+        .iter()
+        .zip(landmarks)
+        .map(|(mesh, landmarks)| ReferenceScan::read(mesh, landmarks))
+        .collect::<Result<Vec<_>, _>>()?;
     let start = std::time::Instant::now();
     let mut reference = if space_from_scans {
         splineface::reference::build_reference_with_space(&scans, options, note)?
@@ -932,13 +693,13 @@ fn fit_reference(
         build_reference(&scans, options, note)?
     };
     if let Some(modes) = modes {
-        reference = with_modes(reference, &scans[0], &landmarks[0], modes)?;
+        reference = modes.build(reference, &scans[0], &landmarks[0])?;
     }
     let elapsed = start.elapsed();
     splineface::io::write_atomically(out, reference.to_json().as_bytes())
         .with_context(|| format!("cannot write {}", out.display()))?;
     let fit = reference.fit();
-    let mm = 63.0 / 50.0;
+    let mm = splineface::face::Units::default().per_canonical_unit();
     println!("{}", out.display());
     println!("  scans          {}", scans.len());
     println!(
@@ -1256,128 +1017,34 @@ fn batch_command(
 }
 
 fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &OutputArgs) -> Result<()> {
-    let options = output.options()?;
-    if !(1..=200).contains(&photos) {
-        bail!("--photos {photos}: between 1 and 200, please");
-    }
-    if !(noise >= 0.0 && noise.is_finite()) {
-        bail!("--noise {noise}: must be a finite percentage, 0 or more");
+    let mut options = output.options()?;
+    let scene_options = splineface::demo::SceneOptions {
+        photos,
+        noise: noise / 100.0,
+        seed,
+        ..splineface::demo::SceneOptions::default()
+    };
+    // The settings checked before any work: `scene` checks them again.
+    if let Err(splineface::demo::DemoError::Setting(e)) = scene_options.validate() {
+        bail!(e.flag_message());
     }
     check_output_dir(out)?;
     let start = std::time::Instant::now();
     progress(&format!(
         "photographing the demo subject: {photos} photos, landmark noise {noise}% of the eye distance"
     ));
-    let scene = splineface::demo::scene(&splineface::demo::SceneOptions {
-        photos,
-        noise: noise / 100.0,
-        seed,
-        ..splineface::demo::SceneOptions::default()
-    })
-    .map_err(anyhow::Error::msg)?;
-    let mut options = options;
+    let scene = splineface::demo::scene(&scene_options)?;
     options.expression_of = output.expression_photo(&scene.inputs)?;
-    let result = reconstruct(&scene.inputs, ReferenceFace::embedded(), &options, progress)?;
-    progress("comparing with the truth");
-    let to_units = options.units.transform();
-    let scale = options.units.per_canonical_unit();
-    let truth_mesh = scene.truth_mesh.transformed(&to_units);
-    let truth_structure: Vec<_> = scene.truth_structure.iter().map(|p| p * scale).collect();
-    let reconstruction = result.output_mesh();
-    let comparison = splineface::compare::compare(
-        &reconstruction,
-        &truth_mesh,
-        Some((&result.structure(), &truth_structure)),
-        &CompareOptions::default(),
-    )?;
-    // The baseline: the reference face unchanged.
-    let mean_face = splineface::face::FaceSurface::deform(
-        ReferenceFace::embedded(),
-        ReferenceFace::embedded().structure(),
-        Deformation::Affine,
-    )?
-    .mesh(&options.mesh)?
-    .mesh
-    .transformed(&to_units);
-    // Its landmarks as the photo path places them, like the reconstruction's and the truth's.
-    let reference_structure: Vec<_> = ReferenceFace::embedded()
-        .photo_structure()
-        .iter()
-        .map(|p| p * scale)
-        .collect();
-    let baseline = splineface::compare::compare(
-        &mean_face,
-        &truth_mesh,
-        Some((&reference_structure, &truth_structure)),
-        &CompareOptions::default(),
-    )?;
-
-    let mut files: Vec<(PathBuf, Vec<u8>)> = scene
-        .files()
-        .map_err(anyhow::Error::msg)?
-        .into_iter()
-        .map(|(p, b)| (Path::new("photos").join(p), b))
-        .collect();
-    let records: Vec<PhotoRecord> = scene
-        .inputs
-        .iter()
-        .map(|input| PhotoRecord::given(&input.points.name, input.points.points.clone()))
-        .collect();
+    let demo = splineface::demo::Demo::run(scene, &options, progress)?;
     let mut warnings = Vec::new();
-    let mut reconstruction_files = result.files()?;
-    reconstruction_files.extend(photo_files(
-        &records,
-        Path::new("landmarks"),
-        &scene.inputs,
-        Some(&result),
-        &mut warnings,
-    ));
+    let files = demo.files(&mut warnings)?;
     for w in &warnings {
         progress(&format!("warning: {w}"));
     }
-    files.extend(
-        reconstruction_files
-            .into_iter()
-            .map(|(p, b)| (Path::new("reconstruction").join(p), b)),
-    );
-    let (w, h) = (
-        comparison.reconstruction.raster.width,
-        comparison.reconstruction.raster.height,
-    );
-    let encode =
-        |r: Result<Vec<u8>, splineface::render::DepthFileError>| r.map_err(|e| anyhow::anyhow!("{e}"));
-    let mut stats = serde_json::to_value(&comparison.stats)?;
-    stats["baseline_mean_face"] = serde_json::to_value(&baseline.stats)?;
-    stats["units"] = options.units.name().into();
-    files.push((
-        "compare/heatmap.png".into(),
-        encode(heatmap_png(
-            &comparison.abs_dz,
-            w,
-            h,
-            comparison.heatmap_max,
-            "mm",
-        ))?,
-    ));
-    files.push(("compare/truth.png".into(), encode(shaded_png(&comparison.truth))?));
-    files.push((
-        "compare/reconstruction.png".into(),
-        encode(shaded_png(&comparison.reconstruction))?,
-    ));
-    files.push(("compare/stats.json".into(), serde_json::to_vec_pretty(&stats)?));
-    let page = splineface::report::report_page(
-        &files,
-        &splineface::report::PageOptions {
-            title: format!("splineface demo: {photos} photos of the demo subject"),
-            reconstruction: "reconstruction".into(),
-            comparison: Some("compare".into()),
-        },
-    );
-    files.push(("report.html".into(), page.into_bytes()));
     write_into(out, &files)?;
 
-    let s = &comparison.stats;
-    let b = &baseline.stats;
+    let s = &demo.comparison.stats;
+    let b = &demo.baseline.stats;
     let unit = if matches!(options.units, Units::Canonical) {
         "units"
     } else {
@@ -1465,33 +1132,15 @@ fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &Outpu
 }
 
 fn compact_model(model: &Path, out: &Path) -> Result<()> {
-    use splineface::landmarker::{ModelSource, ShapePredictor};
-    check_output_file(out)?;
-    let dat = splineface::io::read_input(model, splineface::io::MAX_DATA_INPUT_BYTES)
-        .with_context(|| format!("cannot read {}", model.display()))?;
-    if dat.starts_with(splineface::landmarker::COMPACT_MAGIC) {
-        bail!("{}: it is already in the compact form", model.display());
-    }
-    let source = ModelSource::of(&dat);
-    if let Ok(file) = std::fs::File::open(out)
-        && let Ok(length) = file.metadata().map(|m| m.len())
-        && let Ok((_, recorded)) = ShapePredictor::read_compact(std::io::BufReader::new(file), length)
-        && recorded == source
-    {
-        println!(
+    use splineface::landmarker::{Compacted, write_compact};
+    match write_compact(model, out)? {
+        Compacted::UpToDate => println!(
             "{} is up to date (made from this {})",
             out.display(),
             model.display()
-        );
-        return Ok(());
+        ),
+        Compacted::Written => println!("{}", out.display()),
     }
-    let predictor = ShapePredictor::parse(&dat).map_err(|problem| splineface::landmarker::ModelError {
-        file: model.to_path_buf(),
-        problem,
-    })?;
-    drop(dat);
-    write_files(&[(out.to_path_buf(), predictor.to_compact(source))])?;
-    println!("{}", out.display());
     Ok(())
 }
 
@@ -1515,92 +1164,10 @@ fn landmarks_command(
     check_output_dir(out)?;
     progress(&format!("reading the landmark model {}", model_path.display()));
     let model = splineface::landmarker::ShapePredictor::read(model_path)?;
-    let mut records: Vec<PhotoRecord> = Vec::new();
-    let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
-    let mut lines: Vec<String> = Vec::new();
-    let mut found_any = false;
-    // One photo a name; the photos decoded, detected and landmarked in parallel, gathered in
-    // their order.
-    let mut names = std::collections::BTreeSet::new();
-    let mut unique: Vec<(&Path, String)> = Vec::new();
-    for path in &paths {
-        let stem = photo_stem(path);
-        if names.insert(stem.clone()) {
-            unique.push((path, stem));
-        } else {
-            lines.push(format!(
-                "{}: skipped: another photo has the name `{stem}`",
-                path.display()
-            ));
-        }
-    }
-    use rayon::prelude::*;
-    type Landmarked = (String, Option<PhotoRecord>, Option<(PathBuf, Vec<u8>)>);
-    let results: Vec<Landmarked> = unique
-        .par_iter()
-        .map(|(path, stem)| -> Result<Landmarked> {
-            let decoded = match splineface::align::decode_photo(path) {
-                Ok(d) => d,
-                Err(e) => return Ok((format!("{}: skipped: {}", path.display(), e.problem), None, None)),
-            };
-            match splineface::pipeline::landmark_photo(&model, &decoded, stem) {
-                Ok((_, found, _)) => {
-                    let b = found.face.bbox;
-                    let mut line = format!(
-                        "{}: 68 points, face box {}×{} at ({}, {}), mirror disagreement {:.1}% of the eye width",
-                        path.display(),
-                        b.right - b.left + 1,
-                        b.bottom - b.top + 1,
-                        b.left,
-                        b.top,
-                        100.0 * found.disagreement
-                    );
-                    if let Some(note) = &found.note {
-                        line.push_str(&format!("; {note}"));
-                    }
-                    let json_file = if json {
-                        let landmarks = splineface::landmarks::Landmarks {
-                            scheme: splineface::landmarks::Scheme::Ibug68,
-                            points: splineface::landmarks::LandmarkPoints::Planar(found.ibug.clone()),
-                        };
-                        let text = splineface::landmarks::format_landmarks_json(&landmarks)
-                            .with_context(|| format!("{}: its landmarks", path.display()))?;
-                        Some((PathBuf::from(format!("{stem}.json")), text.into_bytes()))
-                    } else {
-                        None
-                    };
-                    let record = PhotoRecord {
-                        image: Some(decoded.to_rgb8()),
-                        ..PhotoRecord::from_detection(stem, &found)
-                    };
-                    Ok((line, Some(record), json_file))
-                }
-                Err(reason) => Ok((
-                    format!("{}: skipped: {reason}", path.display()),
-                    Some(PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason)),
-                    None,
-                )),
-            }
-        })
-        .collect::<Result<_>>()?;
-    for (line, record, json_file) in results {
-        lines.push(line);
-        found_any |= record.as_ref().is_some_and(|r| r.detected);
-        records.extend(record);
-        files.extend(json_file);
-    }
-    if !found_any {
-        bail!(
-            "no photo gave landmarks:{}",
-            lines.iter().map(|l| format!("\n  {l}")).collect::<String>()
-        );
-    }
-    let mut warnings = Vec::new();
-    // The `.pts` files at the top, so that `reconstruct --landmarks DIR` reads them.
-    files.extend(photo_files(&records, Path::new(""), &[], None, &mut warnings));
-    write_into(out, &files)?;
+    let landmarked = splineface::pipeline::landmark_photos(&paths, &model, json)?;
+    write_into(out, &landmarked.files)?;
     println!("{}", out.display());
-    for line in lines.iter().chain(&warnings) {
+    for line in &landmarked.lines {
         println!("  {line}");
     }
     Ok(())

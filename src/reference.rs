@@ -579,9 +579,19 @@ pub enum ReferenceError {
     /// The fit failed.
     #[error("fitting the control grid: {0}")]
     Fit(#[from] BSplineError),
-    /// The face space learnt from the scans is not usable.
-    #[error("the face space: {0}")]
-    Space(String),
+    /// A face space that is not usable: learnt from the scans, or given with modes that do
+    /// not match the grid ([`ReferenceFace::with_space`]).
+    #[error("the face space: {problem}")]
+    Space {
+        /// What is wrong.
+        problem: String,
+    },
+    /// A photo structure without 40 finite points ([`ReferenceFace::with_photo_structure`]).
+    #[error("{problem}")]
+    PhotoStructure {
+        /// What is wrong.
+        problem: String,
+    },
 }
 
 /// One scan handed to [`build_reference`].
@@ -593,6 +603,43 @@ pub struct ReferenceScan {
     pub structure: Vec<Point3<Real>>,
     /// Where it came from.
     pub source: ReferenceSource,
+}
+
+impl ReferenceScan {
+    /// A scan from its mesh file (OBJ, PLY, glTF or GLB) and its landmark file
+    /// ([`crate::landmarks::read_mesh_structure`]: 3D JSON or 68 vertex indices), with its
+    /// source recorded: the files' names, the mesh's size and the FNV-1a hash of its bytes.
+    ///
+    /// # Errors
+    /// [`crate::Error::Mesh`] or [`crate::Error::Landmarks`] naming the file that cannot be
+    /// read.
+    pub fn read(mesh_path: &std::path::Path, landmarks: &std::path::Path) -> Result<Self, crate::Error> {
+        let mesh = crate::mesh::read_mesh(mesh_path)?;
+        let bytes = crate::io::read_input(mesh_path, crate::io::MAX_LARGE_INPUT_BYTES).map_err(|e| {
+            crate::mesh::MeshError {
+                file: mesh_path.to_path_buf(),
+                problem: e.into(),
+            }
+        })?;
+        let structure = crate::landmarks::read_mesh_structure(landmarks, &mesh)?;
+        let name = |path: &std::path::Path| {
+            path.file_name().map_or_else(
+                || path.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            )
+        };
+        Ok(ReferenceScan {
+            source: ReferenceSource {
+                mesh: name(mesh_path),
+                mesh_fnv1a64: fnv1a64(&bytes),
+                landmarks: name(landmarks),
+                vertices: mesh.positions().len(),
+                triangles: mesh.triangles().len(),
+            },
+            mesh,
+            structure,
+        })
+    }
 }
 
 /// The FNV-1a 64-bit hash of `bytes` as 16 hex digits (for [`ReferenceSource::mesh_fnv1a64`]).
@@ -933,7 +980,7 @@ pub fn build_reference_with_space(
         ),
         expressions: ExpressionModes::default(),
     };
-    reference.with_space(Some(space)).map_err(ReferenceError::Space)
+    reference.with_space(Some(space))
 }
 
 /// The project's default reference, fitted to the ICT-FaceKit mean face (see
@@ -982,10 +1029,11 @@ impl ReferenceFace {
     /// This reference with `points` as its photo structure (or without one, for `None`).
     ///
     /// # Errors
-    /// A message when there are not 40 finite points.
-    pub fn with_photo_structure(mut self, photo: Option<PhotoStructure>) -> Result<Self, String> {
+    /// [`ReferenceError::PhotoStructure`] when there are not 40 finite points.
+    pub fn with_photo_structure(mut self, photo: Option<PhotoStructure>) -> Result<Self, ReferenceError> {
         if let Some(p) = &photo {
-            check_points(&p.points, "photo structure")?;
+            check_points(&p.points, "photo structure")
+                .map_err(|problem| ReferenceError::PhotoStructure { problem })?;
         }
         self.photo_structure = photo;
         Ok(self)
@@ -1008,10 +1056,11 @@ impl ReferenceFace {
     /// [`SpaceModes::rounded`]), or without one for `None`.
     ///
     /// # Errors
-    /// A message when the modes do not match the grid or are not finite.
-    pub fn with_space(mut self, space: Option<SpaceModes>) -> Result<Self, String> {
+    /// [`ReferenceError::Space`] when the modes do not match the grid or are not finite.
+    pub fn with_space(mut self, space: Option<SpaceModes>) -> Result<Self, ReferenceError> {
         if let Some(s) = &space {
-            s.check(self.surface.rows() * self.surface.cols())?;
+            s.check(self.surface.rows() * self.surface.cols())
+                .map_err(|problem| ReferenceError::Space { problem })?;
         }
         self.space = space.map(SpaceModes::rounded);
         Ok(self)

@@ -27,7 +27,7 @@ use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{CompareOptions, CompareStats, InnerFaceOptions, compare, inner_face_score};
 use splineface::depth::{DepthOptions, FrontalFreedom};
-use splineface::face::{Deformation, FaceSurface, MeshOptions, Units};
+use splineface::face::{Deformation, MeshOptions, Units};
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, Shape, reconstruct};
 use splineface::reference::ReferenceFace;
 use splineface::render::{TextStyle, View, draw_text, synthetic_photo, text_width};
@@ -236,19 +236,8 @@ fn score(method: &Method, inputs: &[Input], subject: &Subject) -> Result<(Compar
     let truth_structure: Vec<Point3<Real>> = seen_structure(subject).iter().map(|p| p * mm).collect();
     let (mesh, structure) = match method.run {
         None => {
-            let face = FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?;
-            let mesh = face
-                .mesh(&MeshOptions::default())?
-                .mesh
-                .transformed(&units.transform());
-            (
-                mesh,
-                reference
-                    .photo_structure()
-                    .iter()
-                    .map(|p| p * mm)
-                    .collect::<Vec<_>>(),
-            )
+            let mean = splineface::face::MeanFace::new(reference, units, &MeshOptions::default())?;
+            (mean.mesh, mean.photo_structure)
         }
         Some((rasl, frontal, sim, shape, deformation)) => {
             let options = PipelineOptions {

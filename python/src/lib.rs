@@ -144,6 +144,21 @@ fn kernel_error(error: BSplineError) -> PyErr {
     PyValueError::new_err(error.to_string())
 }
 
+/// A setting out of range as a `ValueError` naming the keyword: `keyword=value: expected`.
+fn setting_error(error: &splineface::error::SettingError) -> PyErr {
+    PyValueError::new_err(format!("{}={}: {}", error.setting, error.value, error.expected))
+}
+
+/// The library's error: a setting as [`setting_error`], anything else a `SplinefaceError`
+/// with the library's message.
+fn library_error(error: splineface::Error) -> PyErr {
+    match &error {
+        splineface::Error::Setting(setting) => setting_error(setting),
+        splineface::Error::Demo(splineface::demo::DemoError::Setting(setting)) => setting_error(setting),
+        _ => SplinefaceError::new_err(error.to_string()),
+    }
+}
+
 // --- the kernel ---------------------------------------------------------------------------------
 
 /// A tensor-product B-spline surface `F(u, v) = Σᵢⱼ Nᵢ,ₚ(u) Nⱼ,q(v) Pᵢⱼ` with a
@@ -762,8 +777,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             }
         }
     }
-    s.options()
-        .map_err(|e| PyValueError::new_err(format!("{}={}: {}", e.setting, e.value, e.expected)))
+    s.options().map_err(|e| setting_error(&e))
 }
 
 /// Where `reconstruct`'s landmarks come from: a model path (loaded here) or a loaded
@@ -904,12 +918,7 @@ fn write_demo_photos(
     noise: f64,
     seed: u64,
 ) -> PyResult<Vec<String>> {
-    if !(noise >= 0.0 && noise.is_finite()) {
-        return Err(PyValueError::new_err(format!(
-            "noise={noise}: must be a finite percentage, 0 or more"
-        )));
-    }
-    let files = py.detach(|| -> Result<Vec<(PathBuf, Vec<u8>)>, String> {
+    let files = py.detach(|| -> Result<Vec<(PathBuf, Vec<u8>)>, splineface::Error> {
         let scene = splineface::demo::scene(&splineface::demo::SceneOptions {
             photos,
             noise: noise / 100.0,
@@ -917,10 +926,10 @@ fn write_demo_photos(
             ..splineface::demo::SceneOptions::default()
         })?;
         let files = scene.files()?;
-        splineface::io::write_into(&directory, &files).map_err(|e| e.to_string())?;
+        splineface::io::write_into(&directory, &files)?;
         Ok(files)
     });
-    let files = files.map_err(SplinefaceError::new_err)?;
+    let files = files.map_err(library_error)?;
     Ok(files
         .iter()
         .map(|(p, _)| p.to_string_lossy().into_owned())

@@ -106,6 +106,12 @@ def test_bad_inputs_are_refused(demo_photos, tmp_path):
         splineface.reconstruct(photos=demo_photos, landmark_model=3.5)
     with pytest.raises(splineface.SplinefaceError, match="missing.dat"):
         splineface.Landmarker(tmp_path / "missing.dat")
+    # The demo's settings are checked by the library and named as keywords; nothing is written.
+    with pytest.raises(ValueError, match="noise=-1: must be a finite percentage"):
+        splineface.write_demo_photos(tmp_path / "demo", photos=3, noise=-1.0)
+    with pytest.raises(ValueError, match="photos=0: between 1 and 200"):
+        splineface.write_demo_photos(tmp_path / "demo", photos=0)
+    assert not (tmp_path / "demo").exists()
     # A damaged photo is skipped with its reason, not fatal.
     broken = tmp_path / "broken"
     broken.mkdir()

@@ -923,14 +923,6 @@ fn mosaic(
     out
 }
 
-fn encode(image: &image::GrayImage) -> Result<Vec<u8>, String> {
-    let mut bytes = Vec::new();
-    image
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| e.to_string())?;
-    Ok(bytes)
-}
-
 impl RaslResult {
     /// Pictures of the alignment for people to look at, as `(file name, PNG bytes)`: the warped
     /// photos and mirrors before and after (`before.png`, `aligned.png`, a grid in batch order:
@@ -941,7 +933,7 @@ impl RaslResult {
     ///
     /// # Errors
     /// The PNG encoder's message.
-    pub fn images(&self) -> Result<Vec<(String, Vec<u8>)>, String> {
+    pub fn images(&self) -> Result<Vec<(String, Vec<u8>)>, crate::io::EncodeError> {
         let (w, h) = (self.options.width, self.options.height);
         let identity = |_: usize, v: f32| v;
         let stretch = |m: &DMatrix<f32>| {
@@ -970,22 +962,28 @@ impl RaslResult {
         Ok(vec![
             (
                 "before.png".to_owned(),
-                encode(&mosaic(&self.before, w, h, identity))?,
+                crate::io::encode_png(&mosaic(&self.before, w, h, identity))?,
             ),
             (
                 "aligned.png".to_owned(),
-                encode(&mosaic(&self.after, w, h, identity))?,
+                crate::io::encode_png(&mosaic(&self.after, w, h, identity))?,
             ),
             (
                 "low-rank.png".to_owned(),
-                encode(&mosaic(&self.low_rank, w, h, stretch(&self.low_rank)))?,
+                crate::io::encode_png(&mosaic(&self.low_rank, w, h, stretch(&self.low_rank)))?,
             ),
             (
                 "sparse.png".to_owned(),
-                encode(&mosaic(&self.sparse, w, h, |_, v| v.abs() / largest))?,
+                crate::io::encode_png(&mosaic(&self.sparse, w, h, |_, v| v.abs() / largest))?,
             ),
-            ("mean-before.png".to_owned(), encode(&mean(&self.before))?),
-            ("mean-after.png".to_owned(), encode(&mean(&self.after))?),
+            (
+                "mean-before.png".to_owned(),
+                crate::io::encode_png(&mean(&self.before))?,
+            ),
+            (
+                "mean-after.png".to_owned(),
+                crate::io::encode_png(&mean(&self.after))?,
+            ),
         ])
     }
 }

@@ -87,18 +87,6 @@ pub fn write_glb(
     write_file(path, &bytes)
 }
 
-/// Encodes an RGB image as PNG.
-///
-/// # Errors
-/// The encoder's message.
-pub fn encode_png(image: &image::RgbImage) -> Result<Vec<u8>, String> {
-    let mut bytes = Vec::new();
-    image::DynamicImage::ImageRgb8(image.clone())
-        .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| e.to_string())?;
-    Ok(bytes)
-}
-
 /// Writes a textured OBJ: `path` (the mesh, which must have texture coordinates to be
 /// textured), its material library beside it (`path` with extension `.mtl`) and the texture
 /// (`.png`), naming each other by file name so the three can move together. Without texture

@@ -23,6 +23,7 @@
 //! Which is the default is set by measurement on ICT-FaceKit identities
 //! (`cargo run --release --example surface_eval`): see [`Deformation::default`].
 
+pub mod modes;
 pub mod refine;
 mod space;
 mod tessellate;
@@ -440,12 +441,17 @@ impl FaceSurface {
     }
 }
 
+/// The distance between the eye centres that millimetre outputs assume unless told otherwise:
+/// 63 mm, a typical adult's interpupillary distance. Photos do not fix a face's size; this
+/// sets it.
+pub const DEFAULT_EYE_DISTANCE_MM: Real = 63.0;
+
 /// Output units (the canonical frame has 50 units between the eye centres).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Units {
     /// Millimetres, taking the distance between the eye centres as given (in mm).
     Millimetres {
-        /// The eye distance in millimetres; 63 by default.
+        /// The eye distance in millimetres; [`DEFAULT_EYE_DISTANCE_MM`] by default.
         eye_distance: Real,
     },
     /// The paper's canonical units.
@@ -453,10 +459,11 @@ pub enum Units {
 }
 
 impl Default for Units {
-    /// Millimetres with 63 mm between the eye centres (a typical adult's interpupillary
-    /// distance).
+    /// Millimetres with [`DEFAULT_EYE_DISTANCE_MM`] between the eye centres.
     fn default() -> Self {
-        Units::Millimetres { eye_distance: 63.0 }
+        Units::Millimetres {
+            eye_distance: DEFAULT_EYE_DISTANCE_MM,
+        }
     }
 }
 
@@ -482,5 +489,53 @@ impl Units {
             Units::Millimetres { .. } => "mm",
             Units::Canonical => "canonical (50 = eye distance)",
         }
+    }
+}
+
+/// The unchanged mean face: the reference's own surface and structures in output units, the
+/// baseline every reconstruction is scored beside (a reconstruction's error means little
+/// alone; one that does not beat this face has learned nothing from the photos).
+#[derive(Debug, Clone)]
+pub struct MeanFace {
+    /// The reference's clipped mesh, in the units asked for.
+    pub mesh: crate::mesh::TriangleMesh,
+    /// Its 40-point structure at its landmark vertices ([`ReferenceFace::structure`]).
+    pub structure: Vec<Point3<Real>>,
+    /// Its 40-point structure as the photo path places it ([`ReferenceFace::photo_structure`]):
+    /// what aligns it to a truth whose landmarks a landmarker found, as a reconstruction's
+    /// structure would be.
+    pub photo_structure: Vec<Point3<Real>>,
+}
+
+impl MeanFace {
+    /// `reference` unchanged, meshed with `mesh` and scaled to `units`.
+    ///
+    /// # Errors
+    /// As [`FaceSurface::deform`] and [`FaceSurface::mesh`] (a reference that loaded does not
+    /// fail; a spacing out of range does).
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::face::{MeanFace, MeshOptions, Units};
+    /// use splineface::reference::ReferenceFace;
+    ///
+    /// let mean = MeanFace::new(ReferenceFace::embedded(), Units::default(), &MeshOptions::default()).unwrap();
+    /// // 40 points, 63 mm between the eye centres.
+    /// let eyes = mean.structure[splineface::structure::LEFT_EYE_CENTRE]
+    ///     - mean.structure[splineface::structure::RIGHT_EYE_CENTRE];
+    /// assert!((eyes.norm() - 63.0).abs() < 1e-9);
+    /// assert!(mean.mesh.triangles().len() > 1000);
+    /// ```
+    pub fn new(reference: &ReferenceFace, units: Units, mesh: &MeshOptions) -> Result<Self, FaceError> {
+        let scale = units.per_canonical_unit();
+        let scaled = |points: &[Point3<Real>]| points.iter().map(|p| p * scale).collect::<Vec<_>>();
+        Ok(MeanFace {
+            mesh: FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?
+                .mesh(mesh)?
+                .mesh
+                .transformed(&units.transform()),
+            structure: scaled(reference.structure()),
+            photo_structure: scaled(reference.photo_structure()),
+        })
     }
 }

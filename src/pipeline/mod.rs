@@ -32,11 +32,11 @@ mod photos;
 mod settings;
 
 pub use photos::{
-    IMAGE_EXTENSIONS, InputError, LANDMARK_EXTENSIONS, PhotoRecord, PhotoSet, PhotoTiming, files_in,
-    gather_inputs, has_extension, landmark_file, landmark_photo, photo_files, photo_index, photo_list,
-    photo_stem, read_photo_points,
+    IMAGE_EXTENSIONS, InputError, LANDMARK_EXTENSIONS, LandmarkedPhotos, PhotoRecord, PhotoSet, PhotoTiming,
+    files_in, gather_inputs, has_extension, landmark_file, landmark_photo, landmark_photos, photo_files,
+    photo_index, photo_list, photo_stem, read_photo_points,
 };
-pub use settings::{SettingError, Settings};
+pub use settings::Settings;
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -50,11 +50,12 @@ use crate::align::{
     disagreeing_photos, landmark_agreement, procrustes_frontal, rasl_frontal,
 };
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
-use crate::export::{PngTexture, StepOptions, encode_glb, encode_png, encode_step};
+use crate::export::{PngTexture, StepOptions, encode_glb, encode_step};
 use crate::face::{
     ClippedMesh, Deformation, FaceError, FaceSurface, FaceTexture, MeshOptions, RefineOptions, RefineView,
     RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
 };
+use crate::io::encode_png;
 use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
 use crate::reference::ReferenceFace;
 use crate::render::{DepthMap, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png};
@@ -808,7 +809,7 @@ fn texture_from_photos(
 /// The consistency map as a picture: the photos' disagreement on the landmark fit's face
 /// (left) and on the refined one (right), each sample a 4 × 4 block, on one scale (0 to 1
 /// normalised intensity; dark where fewer than two photos see the face).
-fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, String> {
+fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, crate::io::EncodeError> {
     const BLOCK: usize = 4;
     let (w, h) = (map.width, map.height);
     let gap = 4;
@@ -827,13 +828,13 @@ fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, String>
             }
         }
     }
-    crate::render::heatmap_png(&values, width, height, 1.0, "").map_err(|e| e.to_string())
+    crate::render::heatmap_png(&values, width, height, 1.0, "")
 }
 
-fn encode_error(file: &str) -> impl Fn(String) -> PipelineError + '_ {
-    move |message| PipelineError::Encode {
+fn encode_error<E: std::fmt::Display>(file: &str) -> impl Fn(E) -> PipelineError + '_ {
+    move |error| PipelineError::Encode {
         file: file.to_owned(),
-        message,
+        message: error.to_string(),
     }
 }
 
@@ -919,7 +920,7 @@ impl Reconstruction {
                 ));
                 let turntable = texture
                     .turntable(&self.mesh)
-                    .map_err(|e| encode_error("turntable.png")(e.to_string()))?;
+                    .map_err(encode_error("turntable.png"))?;
                 files.push((
                     "turntable.png".into(),
                     encode_png(&turntable).map_err(encode_error("turntable.png"))?,

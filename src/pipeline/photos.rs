@@ -90,6 +90,12 @@ pub enum InputError {
         /// Each skipped photo, `path: reason`.
         skipped: Vec<String>,
     },
+    /// No photo given to [`landmark_photos`] gave landmarks.
+    #[error("no photo gave landmarks:{}", lines.iter().map(|l| format!("\n  {l}")).collect::<String>())]
+    NoneLandmarked {
+        /// What became of each photo.
+        lines: Vec<String>,
+    },
 }
 
 /// The files of `dir` with one of `extensions` (case-insensitive), sorted by name.
@@ -678,7 +684,7 @@ pub fn photo_files(
                 landmarks: &record.landmarks,
                 fitted,
             });
-            match crate::export::encode_png(&picture) {
+            match crate::io::encode_png(&picture) {
                 Ok(png) => {
                     files.push((Path::new("overlays").join(format!("{}.png", record.name)), png));
                     (files, None)
@@ -693,4 +699,112 @@ pub fn photo_files(
         warnings.extend(warning);
     }
     files
+}
+
+/// [`landmark_photos`]' answer.
+#[derive(Debug, Clone)]
+pub struct LandmarkedPhotos {
+    /// What became of each photo, in the order given: `PATH: 68 points, face box …` or
+    /// `PATH: skipped: reason`, then any note about an overlay that could not be drawn.
+    pub lines: Vec<String>,
+    /// The files, `(path, bytes)`: `NAME.pts` for each landmarked photo (where `reconstruct
+    /// --landmarks DIR` looks), with `json` also `NAME.json` ([`crate::landmarks`]' JSON
+    /// form), and `overlays/NAME.png` for each decoded photo.
+    pub files: Vec<(PathBuf, Vec<u8>)>,
+}
+
+/// Detects and landmarks the subject of each photo (`splineface landmarks`): the photos
+/// decoded, detected and landmarked in parallel, gathered in their order; a photo whose name
+/// another has already taken is skipped.
+///
+/// # Errors
+/// [`InputError::NoneLandmarked`] with every photo's fate when none gave landmarks;
+/// [`InputError::LandmarkFile`] if a photo's landmarks cannot be written as JSON (they are
+/// finite, so it does not happen).
+pub fn landmark_photos(
+    paths: &[PathBuf],
+    model: &ShapePredictor,
+    json: bool,
+) -> Result<LandmarkedPhotos, InputError> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut names = std::collections::BTreeSet::new();
+    let mut unique: Vec<(&Path, String)> = Vec::new();
+    for path in paths {
+        let stem = photo_stem(path);
+        if names.insert(stem.clone()) {
+            unique.push((path, stem));
+        } else {
+            lines.push(format!(
+                "{}: skipped: another photo has the name `{stem}`",
+                path.display()
+            ));
+        }
+    }
+    type Landmarked = (String, Option<PhotoRecord>, Option<(PathBuf, Vec<u8>)>);
+    let results: Vec<Landmarked> = unique
+        .par_iter()
+        .map(|(path, stem)| -> Result<Landmarked, InputError> {
+            let decoded = match crate::align::decode_photo(path) {
+                Ok(d) => d,
+                Err(e) => return Ok((format!("{}: skipped: {}", path.display(), e.problem), None, None)),
+            };
+            match landmark_photo(model, &decoded, stem) {
+                Ok((_, found, _)) => {
+                    let b = found.face.bbox;
+                    let mut line = format!(
+                        "{}: 68 points, face box {}×{} at ({}, {}), mirror disagreement {:.1}% of the eye width",
+                        path.display(),
+                        b.right - b.left + 1,
+                        b.bottom - b.top + 1,
+                        b.left,
+                        b.top,
+                        100.0 * found.disagreement
+                    );
+                    if let Some(note) = &found.note {
+                        line.push_str(&format!("; {note}"));
+                    }
+                    let json_file = if json {
+                        let landmarks = crate::landmarks::Landmarks {
+                            scheme: crate::landmarks::Scheme::Ibug68,
+                            points: LandmarkPoints::Planar(found.ibug.clone()),
+                        };
+                        let text = crate::landmarks::format_landmarks_json(&landmarks).map_err(|e| {
+                            InputError::LandmarkFile {
+                                path: path.to_path_buf(),
+                                message: format!("its landmarks: {e}"),
+                            }
+                        })?;
+                        Some((PathBuf::from(format!("{stem}.json")), text.into_bytes()))
+                    } else {
+                        None
+                    };
+                    let record = PhotoRecord {
+                        image: Some(decoded.to_rgb8()),
+                        ..PhotoRecord::from_detection(stem, &found)
+                    };
+                    Ok((line, Some(record), json_file))
+                }
+                Err(reason) => Ok((
+                    format!("{}: skipped: {reason}", path.display()),
+                    Some(PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason)),
+                    None,
+                )),
+            }
+        })
+        .collect::<Result<_, _>>()?;
+    let mut records = Vec::new();
+    let mut files = Vec::new();
+    let mut found_any = false;
+    for (line, record, json_file) in results {
+        lines.push(line);
+        found_any |= record.as_ref().is_some_and(|r| r.detected);
+        records.extend(record);
+        files.extend(json_file);
+    }
+    if !found_any {
+        return Err(InputError::NoneLandmarked { lines });
+    }
+    // The `.pts` files at the top, so that `reconstruct --landmarks DIR` reads them.
+    files.extend(photo_files(&records, Path::new(""), &[], None, &mut lines));
+    Ok(LandmarkedPhotos { lines, files })
 }

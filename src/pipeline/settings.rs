@@ -2,21 +2,9 @@
 //! package's keywords), checked and turned into [`PipelineOptions`] in one place.
 
 use super::{PipelineOptions, Shape};
+use crate::error::SettingError;
 use crate::face::{Deformation, MeshOptions, TextureOptions, Units};
 use crate::render::MAX_SIDE;
-
-/// A setting that cannot be used: which (`snake_case`, as the Python keyword; the command
-/// line's flag is the same with dashes), the value given, and what it should be.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{setting} {value}: {expected}")]
-pub struct SettingError {
-    /// The setting, `snake_case`.
-    pub setting: &'static str,
-    /// The value given, as written (words in backticks).
-    pub value: String,
-    /// What it should be.
-    pub expected: String,
-}
 
 /// The settings of `splineface reconstruct`, `splineface batch` and the Python package's
 /// `reconstruct`, unchecked; [`Settings::options`] checks them. The defaults are the command
@@ -53,7 +41,7 @@ impl Default for Settings {
     fn default() -> Self {
         Settings {
             units: "mm".into(),
-            eye_distance: 63.0,
+            eye_distance: crate::face::DEFAULT_EYE_DISTANCE_MM,
             shape: "space".into(),
             space_noise: Shape::DEFAULT_NOISE,
             expression_sigma: Shape::DEFAULT_EXPRESSION_SIGMA,

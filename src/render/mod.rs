@@ -20,12 +20,11 @@ pub use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
 pub use photoreal::{
-    Camera, ColourMap, Lighting, PhotoLook, PhotoRenderError, linear_to_srgb, linear_to_srgb8, render_photo,
-    srgb_to_linear,
+    Camera, ColourMap, Lighting, PhotoLook, linear_to_srgb, linear_to_srgb8, render_photo, srgb_to_linear,
 };
 pub use raster::render_heights;
 pub use text::{TextStyle, draw_text, line_height, text_width, wrap_text};
-pub use write::{DepthFileError, encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis};
+pub use write::{encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis};
 
 /// A viewing direction: the rotation applied to the mesh before looking along `−z`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -54,8 +53,8 @@ impl View {
     /// Parses `front` or `YAW,PITCH,ROLL` (degrees, each finite and within ±180).
     ///
     /// # Errors
-    /// A message saying what was expected.
-    pub fn parse(text: &str) -> Result<Self, String> {
+    /// [`RenderError::View`] saying what was expected.
+    pub fn parse(text: &str) -> Result<Self, RenderError> {
         if text.trim().eq_ignore_ascii_case("front") {
             return Ok(View::front());
         }
@@ -69,9 +68,9 @@ impl View {
             {
                 Ok(View::from_yaw_pitch_roll_degrees(yaw, pitch, roll))
             }
-            _ => Err(format!(
-                "`{text}` is not a view: expected `front` or YAW,PITCH,ROLL in degrees (each within ±180)"
-            )),
+            _ => Err(RenderError::View {
+                text: text.to_owned(),
+            }),
         }
     }
 
@@ -81,27 +80,58 @@ impl View {
     }
 }
 
+/// What went wrong rendering: a setting out of range, nothing to frame, a mesh or structure
+/// the renderer cannot use, or a view that cannot be parsed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RenderError {
+    /// The mesh has no texture coordinates.
+    #[error("the mesh has no texture coordinates")]
+    NoTextureCoordinates,
+    /// A size, margin, focal length or other setting is out of range.
+    #[error("{message}")]
+    Setting {
+        /// What is wrong with which setting.
+        message: String,
+    },
+    /// No finite point to frame.
+    #[error("no finite points to frame")]
+    NothingToFrame,
+    /// The structure does not have 40 finite points.
+    #[error("the structure must have 40 finite points")]
+    Structure,
+    /// A view that cannot be parsed ([`View::parse`]).
+    #[error("`{text}` is not a view: expected `front` or YAW,PITCH,ROLL in degrees (each within ±180)")]
+    View {
+        /// The text given.
+        text: String,
+    },
+}
+
 /// The raster of `width × height` square pixels that frames the points seen from `view`:
 /// their `x`-`y` bounding box grown by `margin` (a fraction of its larger side) on every side,
 /// centred, with the pixel size set by the tighter direction.
 ///
 /// # Errors
-/// A message for zero sizes, sizes over 16384, an empty or non-finite point set, or a
-/// margin that is negative or not finite.
+/// [`RenderError::Setting`] for zero sizes, sizes over [`MAX_SIDE`] or a margin that is
+/// negative or not finite; [`RenderError::NothingToFrame`] for an empty or non-finite point
+/// set.
 pub fn frame_raster(
     points: impl IntoIterator<Item = Point3<Real>>,
     view: &View,
     width: usize,
     height: usize,
     margin: Real,
-) -> Result<Raster, String> {
+) -> Result<Raster, RenderError> {
     if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
-        return Err(format!(
-            "{width}×{height} pixels: each side must be between 1 and {MAX_SIDE}"
-        ));
+        return Err(RenderError::Setting {
+            message: format!("{width}×{height} pixels: each side must be between 1 and {MAX_SIDE}"),
+        });
     }
     if !(margin >= 0.0 && margin.is_finite()) {
-        return Err(format!("margin {margin} must be non-negative and finite"));
+        return Err(RenderError::Setting {
+            message: format!("margin {margin} must be non-negative and finite"),
+        });
     }
     let mut lo = Point2::new(Real::INFINITY, Real::INFINITY);
     let mut hi = Point2::new(Real::NEG_INFINITY, Real::NEG_INFINITY);
@@ -111,7 +141,7 @@ pub fn frame_raster(
         hi = hi.sup(&q.xy());
     }
     if !(lo.x.is_finite() && lo.y.is_finite() && hi.x.is_finite() && hi.y.is_finite()) {
-        return Err("no finite points to frame".to_owned());
+        return Err(RenderError::NothingToFrame);
     }
     let side = (hi.x - lo.x).max(hi.y - lo.y).max(Real::MIN_POSITIVE);
     let extent = (hi - lo).add_scalar(2.0 * margin * side);

@@ -4,7 +4,7 @@
 
 use nalgebra::{Point2, Point3, Vector3};
 
-use super::{DepthMap, View, frame_raster};
+use super::{DepthMap, RenderError, View, frame_raster};
 use crate::Real;
 use crate::align::GreyImage;
 use crate::mesh::TriangleMesh;
@@ -41,7 +41,8 @@ impl SyntheticPhoto {
 /// gives an aligner to hold on to); background 0.1.
 ///
 /// # Errors
-/// A message for a bad size or margin, or a structure without 40 finite points.
+/// [`RenderError::Setting`] for a bad size or margin, [`RenderError::Structure`] for a
+/// structure without 40 finite points.
 pub fn synthetic_photo(
     mesh: &TriangleMesh,
     structure: &[Point3<Real>],
@@ -49,9 +50,9 @@ pub fn synthetic_photo(
     width: usize,
     height: usize,
     margin: Real,
-) -> Result<SyntheticPhoto, String> {
+) -> Result<SyntheticPhoto, RenderError> {
     if structure.len() != POINT_COUNT || structure.iter().any(|p| !p.iter().all(|c| c.is_finite())) {
-        return Err("the structure must have 40 finite points".to_owned());
+        return Err(RenderError::Structure);
     }
     let raster = frame_raster(mesh.positions().iter().copied(), view, width, height, margin)?;
     let map = DepthMap::render(mesh, view, &raster);
@@ -97,7 +98,9 @@ pub fn synthetic_photo(
             data.push(value as f32);
         }
     }
-    let image = GreyImage::new(width, height, data).map_err(|e| e.to_string())?;
+    let image = GreyImage::new(width, height, data).map_err(|e| RenderError::Setting {
+        message: format!("the photo cannot be used: {e}"),
+    })?;
     Ok(SyntheticPhoto {
         image,
         points,

@@ -18,6 +18,7 @@ use image::{Rgb, RgbImage};
 use nalgebra::{Matrix3, Point2, Point3, Rotation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
+use super::RenderError;
 use super::raster::rasterise;
 use crate::Real;
 use crate::mesh::TriangleMesh;
@@ -326,18 +327,6 @@ impl ShadowMap {
     }
 }
 
-/// What can stop a photo from being rendered.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[non_exhaustive]
-pub enum PhotoRenderError {
-    /// The mesh has no texture coordinates.
-    #[error("the mesh has no texture coordinates")]
-    NoTextureCoordinates,
-    /// A setting is out of range.
-    #[error("{0}")]
-    Setting(String),
-}
-
 /// Unit vertex normals: the area-weighted mean of the triangles' normals (`+z`-facing when a
 /// vertex has none).
 fn vertex_normals(mesh: &TriangleMesh) -> Vec<Vector3<Real>> {
@@ -382,7 +371,7 @@ impl SplitMix {
 /// side shows its inside, as a real one would).
 ///
 /// # Errors
-/// [`PhotoRenderError::NoTextureCoordinates`]; [`PhotoRenderError::Setting`] for an image side
+/// [`RenderError::NoTextureCoordinates`]; [`RenderError::Setting`] for an image side
 /// outside 16–8192, a focal length that is not positive, supersampling outside 1–4, or a light
 /// direction, blur or noise that is not finite (or negative).
 pub fn render_photo(
@@ -391,13 +380,13 @@ pub fn render_photo(
     camera: &Camera,
     lighting: &Lighting,
     look: &PhotoLook,
-) -> Result<RgbImage, PhotoRenderError> {
-    let texture = mesh.texture().ok_or(PhotoRenderError::NoTextureCoordinates)?;
+) -> Result<RgbImage, RenderError> {
+    let texture = mesh.texture().ok_or(RenderError::NoTextureCoordinates)?;
     let setting = |ok: bool, message: String| {
         if ok {
             Ok(())
         } else {
-            Err(PhotoRenderError::Setting(message))
+            Err(RenderError::Setting { message })
         }
     };
     setting(

@@ -8,10 +8,7 @@ use nalgebra::Vector3;
 use super::DepthMap;
 use crate::Real;
 
-/// A depth map that could not be encoded.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{0}")]
-pub struct DepthFileError(pub String);
+use crate::io::{EncodeError, encode_png};
 
 /// Encodes the map as OpenEXR, one layer `depth` of two float32 channels, rows from the top:
 /// `Z`, the distance from the view plane through the origin along the viewing direction
@@ -23,7 +20,7 @@ pub struct DepthFileError(pub String);
 ///
 /// # Errors
 /// The encoder's message (should not happen for a valid map).
-pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, EncodeError> {
     use exr::prelude::*;
     let (width, height) = (map.raster.width, map.raster.height);
     let pixels = SpecificChannels::build()
@@ -59,7 +56,7 @@ pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
         .write()
         .non_parallel()
         .to_buffered(Cursor::new(&mut bytes))
-        .map_err(|e| DepthFileError(e.to_string()))?;
+        .map_err(|e| EncodeError::new("EXR", e))?;
     Ok(bytes)
 }
 
@@ -70,7 +67,7 @@ pub fn encode_depth_exr(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
 ///
 /// # Errors
 /// The encoder's message.
-pub fn encode_depth_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+pub fn encode_depth_png(map: &DepthMap) -> Result<Vec<u8>, EncodeError> {
     let (width, height) = (map.raster.width, map.raster.height);
     let (lo, hi) = map.range().unwrap_or((0.0, 0.0));
     let step = if hi > lo { (hi - lo) / 65534.0 } else { 1.0 };
@@ -95,23 +92,13 @@ pub fn encode_depth_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
                 "splineface-depth".to_owned(),
                 format!("height = {lo:?} + (value - 1) * {step:?}; value 0 = background"),
             )
-            .map_err(|e| DepthFileError(e.to_string()))?;
-        let mut writer = encoder
-            .write_header()
-            .map_err(|e| DepthFileError(e.to_string()))?;
+            .map_err(|e| EncodeError::new("PNG", e))?;
+        let mut writer = encoder.write_header().map_err(|e| EncodeError::new("PNG", e))?;
         writer
             .write_image_data(&data)
-            .map_err(|e| DepthFileError(e.to_string()))?;
-        writer.finish().map_err(|e| DepthFileError(e.to_string()))?;
+            .map_err(|e| EncodeError::new("PNG", e))?;
+        writer.finish().map_err(|e| EncodeError::new("PNG", e))?;
     }
-    Ok(bytes)
-}
-
-fn encode_rgb(image: image::RgbImage) -> Result<Vec<u8>, DepthFileError> {
-    let mut bytes = Vec::new();
-    image
-        .write_to(&mut Cursor::new(&mut bytes), image::ImageFormat::Png)
-        .map_err(|e| DepthFileError(e.to_string()))?;
     Ok(bytes)
 }
 
@@ -120,7 +107,7 @@ fn encode_rgb(image: image::RgbImage) -> Result<Vec<u8>, DepthFileError> {
 ///
 /// # Errors
 /// The encoder's message.
-pub fn shaded_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
+pub fn shaded_png(map: &DepthMap) -> Result<Vec<u8>, EncodeError> {
     let (width, height) = (map.raster.width, map.raster.height);
     let light = Vector3::new(-0.4, 0.5, 1.0).normalize();
     let image = image::RgbImage::from_fn(width as u32, height as u32, |x, y| {
@@ -133,7 +120,7 @@ pub fn shaded_png(map: &DepthMap) -> Result<Vec<u8>, DepthFileError> {
             None => image::Rgb([40, 40, 40]),
         }
     });
-    encode_rgb(image)
+    encode_png(&image)
 }
 
 /// The viridis colour map at `t ∈ [0, 1]` (9 samples of matplotlib's table, interpolated).
@@ -173,17 +160,18 @@ pub fn heatmap_png(
     height: usize,
     max: Real,
     unit: &str,
-) -> Result<Vec<u8>, DepthFileError> {
+) -> Result<Vec<u8>, EncodeError> {
     if values.len() != width * height || width == 0 || height == 0 {
-        return Err(DepthFileError(format!(
-            "{} values for a {width}×{height} heatmap",
-            values.len()
-        )));
+        return Err(EncodeError::new(
+            "PNG",
+            format!("{} values for a {width}×{height} heatmap", values.len()),
+        ));
     }
     if !(max > 0.0 && max.is_finite()) {
-        return Err(DepthFileError(format!(
-            "heatmap scale {max} must be positive and finite"
-        )));
+        return Err(EncodeError::new(
+            "PNG",
+            format!("heatmap scale {max} must be positive and finite"),
+        ));
     }
     let size = (height as f32 / 28.0).clamp(12.0, 28.0);
     let digits = if max >= 10.0 {
@@ -234,5 +222,5 @@ pub fn heatmap_png(
         let y = top as f32 + (1.0 - *t as f32) * (bottom - 1 - top) as f32;
         super::text::draw_text(&mut image, text, text_x, y - ascent / 2.0 - size * 0.2, style);
     }
-    encode_rgb(image)
+    encode_png(&image)
 }

@@ -28,7 +28,7 @@ use nalgebra::{Point2, Point3};
 use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{InnerFaceOptions, InnerFaceScore, inner_face_score};
-use splineface::face::{Deformation, FaceSurface, MeshOptions, Units};
+use splineface::face::{Deformation, MeanFace, MeshOptions, Units};
 use splineface::landmarker::ShapePredictor;
 use splineface::mesh::TriangleMesh;
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, Reconstruction, reconstruct};
@@ -116,30 +116,6 @@ fn command_line() -> String {
         )
         .collect::<Vec<_>>()
         .join(" ")
-}
-
-/// The mean face in millimetres: what every reconstruction is measured against.
-struct MeanFace {
-    mesh: TriangleMesh,
-    structure: Vec<Point3<Real>>,
-}
-
-impl MeanFace {
-    fn new(reference: &ReferenceFace) -> Result<Self> {
-        let units = Units::default();
-        let face = FaceSurface::deform(reference, reference.structure(), Deformation::Affine)?;
-        Ok(MeanFace {
-            mesh: face
-                .mesh(&MeshOptions::default())?
-                .mesh
-                .transformed(&units.transform()),
-            structure: reference
-                .structure()
-                .iter()
-                .map(|p| p * units.per_canonical_unit())
-                .collect(),
-        })
-    }
 }
 
 fn score(mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> Result<InnerFaceScore> {
@@ -572,6 +548,7 @@ fn perspective(
     args: &Args,
 ) -> Result<()> {
     let options = PipelineOptions::default();
+    let mean = MeanFace::new(reference, Units::default(), &MeshOptions::default())?;
     for (label, distances) in [
         ("near 0.4-0.6 m", (400.0, 600.0)),
         ("far 10-20 m", (10_000.0, 20_000.0)),
@@ -579,11 +556,7 @@ fn perspective(
         for projected in [true, false] {
             let mut ratios = Vec::new();
             for subject in subjects.iter().filter(|s| s.name != "lps") {
-                let base = score(
-                    &MeanFace::new(reference)?.mesh,
-                    &MeanFace::new(reference)?.structure,
-                    subject,
-                )?;
+                let base = score(&mean.mesh, &mean.structure, subject)?;
                 let dir = photos::render_pool(
                     subject,
                     args.pool,
@@ -1216,7 +1189,7 @@ fn main() -> Result<()> {
     let shared = args.data.join("../..");
     let model = ShapePredictor::read(&args.model)?;
     let reference = ReferenceFace::embedded();
-    let mean_face = MeanFace::new(reference)?;
+    let mean_face = MeanFace::new(reference, Units::default(), &MeshOptions::default())?;
     std::fs::create_dir_all(&args.out)?;
 
     // Subjects and their pools.
