@@ -19,11 +19,12 @@ use serde::{Deserialize, Serialize};
 
 use crate::Real;
 use crate::io::OutputError;
+use crate::io::fnv1a64_hex;
 use crate::landmarker::ShapePredictor;
 use crate::pipeline::{
     IMAGE_EXTENSIONS, LANDMARK_EXTENSIONS, PipelineOptions, files_in, gather_inputs, reconstruct,
 };
-use crate::reference::{ReferenceFace, fnv1a64};
+use crate::reference::ReferenceFace;
 
 /// The file in each subject's output folder that records its row and fingerprint.
 pub const STATE_FILE: &str = "batch-state.json";
@@ -280,7 +281,7 @@ pub fn file_identity(path: Option<&Path>) -> Result<String, BatchError> {
             error,
         }
     })?;
-    Ok(format!("{} {}", bytes.len(), fnv1a64(&bytes)))
+    Ok(format!("{} {}", bytes.len(), fnv1a64_hex(&bytes)))
 }
 
 /// The fingerprint of everything a subject's outputs depend on.
@@ -300,7 +301,7 @@ fn fingerprint(files: &[PathBuf], job: &BatchJob<'_>) -> Result<String, String> 
             .unwrap_or_default();
         text.push_str(&format!("{name} {identity}\n"));
     }
-    Ok(fnv1a64(text.as_bytes()))
+    Ok(fnv1a64_hex(text.as_bytes()))
 }
 
 /// The row recorded in `folder`'s state file, if its fingerprint is `fingerprint` and the

@@ -68,7 +68,7 @@ impl CompareOptions {
     ///
     /// assert!(CompareOptions::default().validate().is_ok());
     /// let error = CompareOptions { size: 8, ..CompareOptions::default() }.validate().unwrap_err();
-    /// assert_eq!(error.flag_message(), "--size 8: must be between 16 and 8192");
+    /// assert_eq!(error.flag_message(), format!("--size 8: must be between 16 and {}", splineface::render::MAX_SIDE));
     /// ```
     pub fn validate(&self) -> Result<(), SettingError> {
         if !(16..=crate::render::MAX_SIDE).contains(&self.size) {

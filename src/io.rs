@@ -91,7 +91,7 @@ pub(crate) fn utf8_text(bytes: &[u8]) -> Result<&str, String> {
 
 /// A `serde_json` error's message without the ` at line L column C` it appends, for callers
 /// that report the position themselves.
-pub fn json_message(error: &serde_json::Error) -> String {
+pub(crate) fn json_message(error: &serde_json::Error) -> String {
     let message = error.to_string();
     let suffix = format!(" at line {} column {}", error.line(), error.column());
     match message.strip_suffix(&suffix) {
@@ -465,4 +465,25 @@ where
         .write_to(&mut std::io::Cursor::new(&mut bytes), image::ImageFormat::Png)
         .map_err(|e| EncodeError::new("PNG", e))?;
     Ok(bytes)
+}
+
+/// The FNV-1a 64-bit hash of `bytes`: the identity of an input file's bytes in fingerprints,
+/// compact models and reference sources (fast and stable; not a cryptographic hash).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// [`fnv1a64`] as 16 lower-case hex digits (as
+/// [`crate::reference::ReferenceSource::mesh_fnv1a64`] records it).
+///
+/// # Examples
+/// ```
+/// // The FNV-1a offset basis: the hash of nothing.
+/// assert_eq!(splineface::io::fnv1a64_hex(b""), "cbf29ce484222325");
+/// assert_eq!(splineface::io::fnv1a64_hex(b"a"), "af63dc4c8601ec8c");
+/// ```
+pub fn fnv1a64_hex(bytes: &[u8]) -> String {
+    format!("{:016x}", fnv1a64(bytes))
 }

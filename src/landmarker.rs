@@ -568,7 +568,7 @@ fn similarity_linear(from: &[[f32; 2]], to: &[[f32; 2]]) -> Matrix2<f32> {
 pub const COMPACT_MAGIC: &[u8; 16] = b"splineface-sp-1\n";
 
 /// The dlib file a compact model was made from: its length and FNV-1a 64 hash
-/// ([`crate::reference::fnv1a64_value`]), recorded in the compact file.
+/// ([`crate::io::fnv1a64`]), recorded in the compact file.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct ModelSource {
     /// The `.dat` file's length in bytes.
@@ -582,7 +582,7 @@ impl ModelSource {
     pub fn of(bytes: &[u8]) -> Self {
         ModelSource {
             bytes: bytes.len() as u64,
-            fnv1a64: crate::reference::fnv1a64_value(bytes),
+            fnv1a64: crate::io::fnv1a64(bytes),
         }
     }
 }

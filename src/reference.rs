@@ -631,7 +631,7 @@ impl ReferenceScan {
         Ok(ReferenceScan {
             source: ReferenceSource {
                 mesh: name(mesh_path),
-                mesh_fnv1a64: fnv1a64(&bytes),
+                mesh_fnv1a64: crate::io::fnv1a64_hex(&bytes),
                 landmarks: name(landmarks),
                 vertices: mesh.positions().len(),
                 triangles: mesh.triangles().len(),
@@ -640,18 +640,6 @@ impl ReferenceScan {
             structure,
         })
     }
-}
-
-/// The FNV-1a 64-bit hash of `bytes` as 16 hex digits (for [`ReferenceSource::mesh_fnv1a64`]).
-pub fn fnv1a64(bytes: &[u8]) -> String {
-    format!("{:016x}", fnv1a64_value(bytes))
-}
-
-/// The FNV-1a 64-bit hash of `bytes`.
-pub fn fnv1a64_value(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
 }
 
 fn check_option(

@@ -35,9 +35,7 @@ fn main() -> Result<()> {
             mesh: format!(
                 "ICT-FaceKit identity (seed {SEED}, w ~ N(0, 0.8^2)) + mild smile and raised brows"
             ),
-            mesh_fnv1a64: splineface::reference::fnv1a64(
-                splineface::mesh::format_obj(&subject.mesh).as_bytes(),
-            ),
+            mesh_fnv1a64: splineface::io::fnv1a64_hex(splineface::mesh::format_obj(&subject.mesh).as_bytes()),
             landmarks: "landmarks68.txt".to_owned(),
             vertices: subject.mesh.positions().len(),
             triangles: subject.mesh.triangles().len(),

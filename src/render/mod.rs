@@ -24,7 +24,7 @@ pub use photoreal::{
 };
 pub use raster::render_heights;
 pub use text::{TextStyle, draw_text, line_height, text_width, wrap_text};
-pub use write::{encode_depth_exr, encode_depth_png, heatmap_png, shaded_png, viridis};
+pub use write::{encode_depth_exr, encode_depth_png, heatmap_png, shaded_png};
 
 /// A viewing direction: the rotation applied to the mesh before looking along `−z`.
 #[derive(Debug, Clone, Copy, PartialEq)]

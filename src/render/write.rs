@@ -124,7 +124,7 @@ pub fn shaded_png(map: &DepthMap) -> Result<Vec<u8>, EncodeError> {
 }
 
 /// The viridis colour map at `t ∈ [0, 1]` (9 samples of matplotlib's table, interpolated).
-pub fn viridis(t: Real) -> [u8; 3] {
+pub(crate) fn viridis(t: Real) -> [u8; 3] {
     const TABLE: [[Real; 3]; 9] = [
         [68.0, 1.0, 84.0],
         [71.0, 44.0, 122.0],

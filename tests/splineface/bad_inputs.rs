@@ -675,7 +675,7 @@ fn bad_paths_and_flags_fail_cleanly() {
                 "--max",
                 "-1",
             ]),
-            vec!["--max -1 must be a positive number of millimetres"],
+            vec!["--max -1: must be a positive number of millimetres"],
         ),
         (
             args(&[
@@ -687,7 +687,7 @@ fn bad_paths_and_flags_fail_cleanly() {
                 "--size",
                 "0",
             ]),
-            vec!["--size 0 must be between 16 and"],
+            vec!["--size 0: must be between 16 and"],
         ),
         (
             args(&[
