@@ -23,6 +23,7 @@ mod face;
 mod face_space;
 mod landmarker;
 mod landmarks;
+mod library_inputs;
 mod mesh;
 mod mesh_closest;
 mod photoreal;
