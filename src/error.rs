@@ -105,9 +105,6 @@ pub enum Error {
     /// The depth stage.
     #[error(transparent)]
     Depth(#[from] crate::depth::DepthError),
-    /// STEP, GLB or OBJ export.
-    #[error(transparent)]
-    Export(#[from] crate::export::ExportError),
     /// Rendering a depth map or photo.
     #[error(transparent)]
     Render(#[from] crate::render::RenderError),

@@ -9,7 +9,7 @@
 //!
 //! * [`bspline`]: the geometry kernel. [`bspline::KnotVector`], the basis functions,
 //!   [`bspline::BSplineSurface`] (evaluation, derivatives, normals, dense grids, the sparse
-//!   basis matrix, affine maps, JSON), [`bspline::SurfaceFit`] (least-squares control grids
+//!   basis matrix, affine maps, JSON and STEP files), [`bspline::SurfaceFit`] (least-squares control grids
 //!   from up to millions of scattered samples) and [`bspline::SurfaceSpace`] (linear spaces
 //!   of surfaces on one knot layout: a base grid plus displacement modes).
 //!
@@ -21,9 +21,10 @@
 //!   region, optionally a face space) fitted to scans, and the embedded default,
 //!   [`reference::ReferenceFace::embedded`], which carries ICT-FaceKit's 60 identity modes.
 //!
-//! * [`mesh`]: triangle meshes and their files (OBJ, PLY, glTF/GLB in; OBJ, PLY out) and the
-//!   frontal rasteriser; [`landmarks`]: landmark files (`.pts`, JSON, vertex indices);
-//!   [`io`]: inputs read within limits (no devices, pipes or oversized files) and outputs
+//! * [`mesh`]: triangle meshes and every mesh file format (OBJ, PLY, glTF/GLB in; OBJ with
+//!   its MTL and texture, PLY, GLB out) and the frontal rasteriser; [`landmarks`]: landmark
+//!   files (`.pts`, JSON, vertex indices); [`io`]: inputs read within limits (no devices,
+//!   pipes or oversized files), PNG encoding, and outputs
 //!   written whole (staged, then renamed).
 //!
 //! * [`align`]: the frontal 2D structure of a batch of photos ([`align::procrustes_frontal`]
@@ -37,8 +38,8 @@
 //! * [`face`]: the face surface: the reference grid deformed to an estimated structure (the
 //!   paper's affine `Tr_f`, or the local mode), or a member of the statistical face space
 //!   ([`face::FaceSpace`]) fitted to the photos' points, the default by measurement
-//!   ([`face::FaceSpace::fit_photos`]); and its clipped mesh; [`export`]: STEP, GLB and
-//!   textured OBJ; [`render`]: depth maps (EXR, 16-bit PNG), previews, heatmaps, synthetic
+//!   ([`face::FaceSpace::fit_photos`]); and its clipped mesh; [`render`]: depth maps and
+//!   their files (EXR, 16-bit PNG), previews, heatmaps, synthetic
 //!   photos and photo-realistic ones ([`render::render_photo`]: a textured mesh, a perspective
 //!   camera, light and shadow); [`compare`]: a reconstruction against a ground truth, with the
 //!   paper's measures and the inner-face score accuracy is claimed in
@@ -73,7 +74,6 @@ pub mod demo;
 pub mod depth;
 pub mod detect;
 pub mod error;
-pub mod export;
 pub mod face;
 pub mod io;
 pub mod landmarker;

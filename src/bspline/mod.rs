@@ -45,6 +45,7 @@ mod inversion;
 mod knots;
 mod refine;
 mod space;
+mod step;
 mod surface;
 
 pub use basis::{basis_derivatives, basis_functions};
@@ -53,6 +54,7 @@ pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};
 pub use space::{SpaceSamples, SurfaceSpace};
+pub use step::{StepOptions, encode_step};
 pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives};
 
 use crate::Real;

@@ -21,15 +21,17 @@ use nalgebra::{Affine3, Point2, Point3, Vector3};
 use crate::Real;
 
 mod closest;
+mod glb;
 mod gltf;
 mod obj;
 mod ply;
 mod raster;
 
 pub use closest::{Closest, ClosestPoints, closest_on_triangle};
+pub use glb::{MAX_GLB_BYTES, PngTexture, encode_glb, write_glb};
 pub use gltf::parse_gltf;
 pub(crate) use obj::format_obj_with_material;
-pub use obj::{format_obj, parse_obj};
+pub use obj::{format_mtl, format_obj, parse_obj, write_obj};
 pub use ply::{PlyEncoding, encode_ply, parse_ply};
 pub use raster::{FrontHit, Raster, front_heights, front_hits};
 

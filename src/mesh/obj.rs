@@ -5,7 +5,7 @@ use std::fmt::Write;
 
 use nalgebra::{Point2, Point3};
 
-use super::{MeshProblem, TextureCoordinates, TriangleMesh, syntax};
+use super::{MeshError, MeshProblem, TextureCoordinates, TriangleMesh, syntax};
 use crate::Real;
 
 /// One face corner as written: position index and optional texture index, 1-based or
@@ -228,4 +228,50 @@ pub(crate) fn format_obj_with_material(mesh: &TriangleMesh, material: Option<(&s
         out.push('\n');
     }
     out
+}
+
+/// The material library of a textured OBJ: one material, `face`, whose diffuse map is the
+/// image file `texture` (named relative to the `.mtl`).
+pub fn format_mtl(texture: &str) -> String {
+    format!(
+        "# written by splineface\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd {texture}\n"
+    )
+}
+
+/// Writes a textured OBJ: `path` (the mesh, which must have texture coordinates to be
+/// textured), its material library beside it (`path` with extension `.mtl`,
+/// [`format_mtl`]) and the texture (`.png`, the PNG bytes given), naming each other by file
+/// name so the three can move together. Without texture coordinates or texture, writes the
+/// OBJ alone. All or nothing.
+///
+/// # Errors
+/// A [`MeshError`] naming the first file that could not be written (files this call wrote
+/// are removed again), or [`MeshProblem::Syntax`] for a file name that is not UTF-8 text
+/// (the OBJ must name the MTL, and the MTL the PNG).
+pub fn write_obj(
+    path: &std::path::Path,
+    mesh: &TriangleMesh,
+    texture: Option<&[u8]>,
+) -> Result<(), MeshError> {
+    let error = |file: &std::path::Path, problem| MeshError {
+        file: file.to_path_buf(),
+        problem,
+    };
+    let texture = texture.filter(|_| mesh.texture().is_some());
+    let Some(png) = texture else {
+        return crate::io::write_atomically(path, format_obj(mesh).as_bytes())
+            .map_err(|e| error(path, e.into()));
+    };
+    let stem = path
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .ok_or_else(|| error(path, syntax("file name", "the file name is not UTF-8 text")))?;
+    let (mtl, image) = (path.with_extension("mtl"), path.with_extension("png"));
+    let obj = format_obj_with_material(mesh, Some((&format!("{stem}.mtl"), "face")));
+    crate::io::write_files_atomically(&[
+        (image, png.to_vec()),
+        (mtl, format_mtl(&format!("{stem}.png")).into_bytes()),
+        (path.to_path_buf(), obj.into_bytes()),
+    ])
+    .map_err(|(file, e)| error(&file, e.into()))
 }

@@ -49,14 +49,15 @@ use crate::align::{
     AlignError, Dropped, FrontalStructure, GreyImage, PhotoPoints, RaslOptions, RaslPhoto, RaslResult,
     disagreeing_photos, landmark_agreement, procrustes_frontal, rasl_frontal,
 };
+use crate::bspline::{StepOptions, encode_step};
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
-use crate::export::{PngTexture, StepOptions, encode_glb, encode_step};
 use crate::face::{
     ClippedMesh, Deformation, FaceError, FaceSurface, FaceTexture, MeshOptions, RefineOptions, RefineView,
     RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
 };
 use crate::io::encode_png;
 use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
+use crate::mesh::{PngTexture, encode_glb};
 use crate::reference::ReferenceFace;
 use crate::render::{DepthMap, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png};
 use crate::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE};
@@ -905,8 +906,7 @@ impl Reconstruction {
                 files.push(("face.obj".into(), obj.into_bytes()));
                 files.push((
                     "face.mtl".into(),
-                    b"# written by splineface\nnewmtl face\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\nmap_Kd face.png\n"
-                        .to_vec(),
+                    crate::mesh::format_mtl("face.png").into_bytes(),
                 ));
                 files.push((
                     "face.glb".into(),

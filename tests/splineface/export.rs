@@ -5,10 +5,11 @@ use std::path::PathBuf;
 
 use nalgebra::{Point2, Point3};
 use splineface::Real;
+use splineface::bspline::{StepOptions, encode_step};
 use splineface::depth::{PhotoFit, Pose};
-use splineface::export::{PngTexture, StepOptions, encode_step, write_glb, write_obj};
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::io::encode_png;
+use splineface::mesh::{PngTexture, write_glb, write_obj};
 use splineface::mesh::{read_mesh, write_mesh};
 use splineface::reference::ReferenceFace;
 

@@ -5,8 +5,8 @@ use std::fmt::Write;
 
 use nalgebra::Point3;
 
+use super::{BSplineSurface, KnotVector};
 use crate::Real;
-use crate::bspline::{BSplineSurface, KnotVector};
 
 /// What goes into a STEP file besides the surface.
 #[derive(Debug, Clone, Default)]

@@ -9,8 +9,8 @@ use std::collections::HashMap;
 use nalgebra::{Point2, Point3, Vector3};
 use serde_json::{Value, json};
 
+use super::{MeshError, MeshProblem, TriangleMesh};
 use crate::Real;
-use crate::mesh::TriangleMesh;
 
 /// A texture image for [`encode_glb`]: PNG bytes and their size.
 #[derive(Debug, Clone, Copy)]
@@ -181,4 +181,33 @@ pub fn encode_glb(mesh: &TriangleMesh, name: &str, texture: Option<PngTexture<'_
     out.extend_from_slice(b"BIN\0");
     out.extend_from_slice(&bin);
     out
+}
+
+/// The largest binary glTF file: its header counts bytes in 32 bits.
+pub const MAX_GLB_BYTES: usize = u32::MAX as usize;
+
+/// Writes a binary glTF file (see [`encode_glb`]), all or nothing.
+///
+/// # Errors
+/// A [`MeshError`] naming the file: [`MeshProblem::TooLarge`] past 4 GiB, or the I/O error.
+pub fn write_glb(
+    path: &std::path::Path,
+    mesh: &TriangleMesh,
+    name: &str,
+    texture: Option<PngTexture<'_>>,
+) -> Result<(), MeshError> {
+    let error = |problem| MeshError {
+        file: path.to_path_buf(),
+        problem,
+    };
+    let estimate =
+        40 * mesh.positions().len() + 12 * mesh.triangles().len() + texture.map_or(0, |t| t.png.len());
+    if estimate > MAX_GLB_BYTES {
+        return Err(error(MeshProblem::TooLarge(format!("about {estimate} bytes"))));
+    }
+    let bytes = encode_glb(mesh, name, texture);
+    if bytes.len() > MAX_GLB_BYTES {
+        return Err(error(MeshProblem::TooLarge(format!("{} bytes", bytes.len()))));
+    }
+    crate::io::write_atomically(path, &bytes).map_err(|e| error(e.into()))
 }
