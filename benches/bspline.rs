@@ -16,17 +16,7 @@ use splineface::bspline::{BSplineSurface, KnotVector, SurfaceFit};
 use std::hint::black_box;
 use std::time::Duration;
 
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+use splineface::random::Lcg;
 
 fn cubic_surface(n: usize) -> BSplineSurface {
     let k = KnotVector::clamped_uniform(3, n, 0.0, 1.0).unwrap();

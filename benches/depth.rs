@@ -16,20 +16,7 @@ use splineface::depth::{DepthOptions, FrontalFreedom, Pose, StructurePrior, esti
 use splineface::reference::ReferenceFace;
 use std::hint::black_box;
 
-struct Lcg(u64);
-
-impl Lcg {
-    fn next(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn uniform(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.next()
-    }
-}
+use splineface::random::Lcg;
 
 fn photos(count: usize) -> Vec<PhotoPoints> {
     let mut rng = Lcg(7);

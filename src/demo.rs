@@ -34,29 +34,6 @@ pub fn subject() -> &'static ReferenceFace {
     })
 }
 
-/// A small seeded generator (64-bit LCG, Knuth's MMIX constants): the same scene on every
-/// machine.
-struct Random(u64);
-
-impl Random {
-    fn next(&mut self) -> Real {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as Real / (1u64 << 53) as Real
-    }
-
-    fn uniform(&mut self, a: Real, b: Real) -> Real {
-        a + (b - a) * self.next()
-    }
-
-    fn gaussian(&mut self) -> Real {
-        let u = self.next().max(1e-300);
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.next()).cos()
-    }
-}
-
 /// What can stop the demo.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -180,7 +157,7 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, DemoError> {
         .zip(reference.photo_structure().iter().zip(reference.structure()))
         .map(|(p, (a, b))| p + (a - b))
         .collect();
-    let mut random = Random(options.seed);
+    let mut random = crate::random::Lcg(options.seed);
     let mut inputs = Vec::with_capacity(options.photos);
     let mut poses = Vec::with_capacity(options.photos);
     for k in 0..options.photos {

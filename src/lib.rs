@@ -80,6 +80,7 @@ pub mod landmarker;
 pub mod landmarks;
 pub mod mesh;
 pub mod pipeline;
+pub mod random;
 pub mod reference;
 pub mod render;
 pub mod report;

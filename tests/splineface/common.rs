@@ -113,33 +113,8 @@ pub fn surface() -> impl Strategy<Value = BSplineSurface> {
     (knot_vector(), knot_vector(), any::<u64>()).prop_map(|(ku, kv, seed)| random_surface(ku, kv, seed))
 }
 
-/// A tiny deterministic generator (tests must not depend on a crate's RNG stream).
-pub struct Lcg(pub u64);
-
-impl Lcg {
-    /// Uniform in `[0, 1)`.
-    pub fn next(&mut self) -> Real {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as Real / (1u64 << 53) as Real
-    }
-
-    /// Uniform in `[a, b)`.
-    pub fn uniform(&mut self, a: Real, b: Real) -> Real {
-        a + (b - a) * self.next()
-    }
-}
-
-impl Lcg {
-    /// Standard normal (Box–Muller).
-    pub fn gaussian(&mut self) -> Real {
-        let u = self.next().max(1e-300);
-        let v = self.next();
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * v).cos()
-    }
-}
+/// The seeded generator (tests must not depend on a crate's RNG stream).
+pub use splineface::random::Lcg;
 
 /// A fresh, empty scratch folder for a test: `splineface-GROUP-NAME-PID` in the temporary
 /// folder.

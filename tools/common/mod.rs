@@ -10,31 +10,7 @@ use splineface::landmarks::read_vertex_indices;
 use splineface::mesh::{TriangleMesh, read_mesh};
 use splineface::structure::{IBUG_POINT_COUNT, from_ibug68, unify};
 
-/// A 64-bit linear congruential generator (Knuth's MMIX constants): small, seeded, the same
-/// numbers on every machine.
-pub struct Lcg(pub u64);
-
-impl Lcg {
-    /// Uniform in `[0, 1)`.
-    pub fn next(&mut self) -> Real {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        (self.0 >> 11) as Real / (1u64 << 53) as Real
-    }
-
-    /// Uniform in `[a, b)`.
-    pub fn uniform(&mut self, a: Real, b: Real) -> Real {
-        a + (b - a) * self.next()
-    }
-
-    /// Standard normal (Box–Muller).
-    pub fn gaussian(&mut self) -> Real {
-        let u = self.next().max(1e-300);
-        (-2.0 * u.ln()).sqrt() * (2.0 * std::f64::consts::PI * self.next()).cos()
-    }
-}
+pub use splineface::random::Lcg;
 
 /// The ICT-FaceKit data (`../shared/data/ict-face`): the neutral face, its 68 landmark
 /// vertices and the identity modes.
