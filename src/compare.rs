@@ -616,12 +616,7 @@ pub fn compare(
     ));
 
     let front = View::front();
-    let mut lo = aligned.positions()[0];
-    let mut hi = lo;
-    for p in aligned.positions() {
-        lo = lo.inf(p);
-        hi = hi.sup(p);
-    }
+    let (lo, hi) = crate::geometry::bounding_box(aligned.positions()).expect("a mesh has vertices");
     let (w, h) = if hi.x - lo.x >= hi.y - lo.y {
         (
             options.size,
@@ -852,11 +847,7 @@ pub fn inner_face_score(
     let outline = inner_face_outline(&tru_view);
 
     // The truth's frontal samples inside the outline.
-    let (mut lo, mut hi) = (outline[0], outline[0]);
-    for p in &outline {
-        lo = lo.inf(p);
-        hi = hi.sup(p);
-    }
+    let (lo, hi) = crate::geometry::bounding_box(&outline).expect("the outline has points");
     let width = ((hi.x - lo.x) / options.spacing).floor() as usize + 1;
     let height = ((hi.y - lo.y) / options.spacing).floor() as usize + 1;
     if width > crate::render::MAX_SIDE || height > crate::render::MAX_SIDE {
@@ -878,7 +869,7 @@ pub fn inner_face_score(
         for i in 0..width {
             let z = heights[j * width + i];
             let p = raster.position(i, j);
-            if z.is_finite() && crate::reference::polygon_contains(&outline, p) {
+            if z.is_finite() && crate::geometry::polygon_contains(&outline, p) {
                 slots.push(j * width + i);
                 samples.push(Point3::new(p.x, p.y, z));
             }

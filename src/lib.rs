@@ -75,6 +75,7 @@ pub mod depth;
 pub mod detect;
 pub mod error;
 pub mod face;
+pub mod geometry;
 pub mod io;
 pub mod landmarker;
 pub mod landmarks;

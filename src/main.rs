@@ -644,12 +644,8 @@ fn inspect(path: &Path) -> Result<()> {
     println!("  degrees      {} × {}", surface.degree_u(), surface.degree_v());
     println!("  control grid {} × {}", surface.rows(), surface.cols());
     println!("  domain       u ∈ [{u0}, {u1}], v ∈ [{v0}, {v1}]");
-    let mut lo = surface.control_points()[0];
-    let mut hi = lo;
-    for p in surface.control_points() {
-        lo = lo.inf(p);
-        hi = hi.sup(p);
-    }
+    let (lo, hi) =
+        splineface::geometry::bounding_box(surface.control_points()).context("no control points")?;
     println!(
         "  control box  [{:.6}, {:.6}] × [{:.6}, {:.6}] × [{:.6}, {:.6}]",
         lo.x, hi.x, lo.y, hi.y, lo.z, hi.z

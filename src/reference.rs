@@ -57,6 +57,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::Real;
 use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit};
+use crate::geometry::{bounding_box, polygon_contains};
 use crate::mesh::{Raster, TriangleMesh, front_heights};
 use crate::structure::{self, POINT_COUNT, StructureError, delaunay_edges, unify};
 
@@ -684,24 +685,6 @@ pub fn face_region(structure: &[Point3<Real>], brow_lift: Real, margin: Real) ->
         .collect()
 }
 
-/// Whether `p` lies inside `polygon` (even-odd rule; points on the boundary may go either way).
-pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
-    let mut inside = false;
-    for k in 0..polygon.len() {
-        let (a, b) = (polygon[k], polygon[(k + 1) % polygon.len()]);
-        if edge_crossing(a, b, p.y).is_some_and(|x| p.x < x) {
-            inside = !inside;
-        }
-    }
-    inside
-}
-
-/// Where the edge `ab` crosses the line at height `y`, under [`polygon_contains`]'s rule (an
-/// edge counts when exactly one end lies above `y`); `None` when it does not cross.
-pub(crate) fn edge_crossing(a: Point2<Real>, b: Point2<Real>, y: Real) -> Option<Real> {
-    ((a.y > y) != (b.y > y)).then(|| a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x))
-}
-
 /// Builds a reference face from one or more scans (see the module documentation).
 ///
 /// # Errors
@@ -829,11 +812,7 @@ fn prepare(scans: &[ReferenceScan], options: &ReferenceOptions) -> Result<Prepar
     // 2. The face region and the frontal box.
     let region = face_region(&mean, options.brow_lift, options.margin);
     let fitted_region = face_region(&mean, options.brow_lift, options.fit_margin);
-    let (mut lo, mut hi) = (region[0], region[0]);
-    for p in &region {
-        lo = lo.inf(p);
-        hi = hi.sup(p);
-    }
+    let (lo, hi) = bounding_box(&region).expect("the face region has points");
     let frame = FrontalFrame {
         x: [lo.x, hi.x],
         y: [lo.y, hi.y],

@@ -23,16 +23,16 @@ use nalgebra::Point3;
 use parry3d::math::Vec3;
 use parry3d::query::PointQuery;
 use parry3d::shape::TriMesh;
+use splineface::geometry::polygon_contains;
 use splineface::landmarks::read_vertex_indices;
 use splineface::mesh::{Raster, front_heights, read_mesh};
 use splineface::reference::{
     ReferenceFace, ReferenceOptions, ReferenceScan, ReferenceSource, build_reference, face_region,
-    polygon_contains,
 };
 use splineface::structure::{from_ibug68, unify};
 
 /// Millimetres per canonical unit (63 mm between eye centres, 50 units).
-const MM: f64 = 63.0 / 50.0;
+const MM: f64 = splineface::face::DEFAULT_EYE_DISTANCE_MM / 50.0;
 
 /// Tessellation of the surface over its whole domain.
 fn tessellate(reference: &ReferenceFace, n: usize) -> Result<TriMesh> {

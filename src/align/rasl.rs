@@ -254,11 +254,7 @@ impl Column {
                 &Point2::new(a * (window.0 - 1) as Real, b * (window.1 - 1) as Real),
             )
         });
-        let (mut lo, mut hi) = (corners[0], corners[0]);
-        for c in &corners {
-            lo = lo.inf(c);
-            hi = hi.sup(c);
-        }
+        let (lo, hi) = crate::geometry::bounding_box(&corners).expect("four corners");
         let margin = REACH_MARGIN * (hi.x - lo.x).max(hi.y - lo.y);
         let place = |v: Real, last: usize| v.clamp(0.0, last as Real) as usize;
         // The whole image when the warp is degenerate (RASL then fails on its own terms).

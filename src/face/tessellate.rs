@@ -7,8 +7,8 @@ use spade::{ConstrainedDelaunayTriangulation, Triangulation};
 use super::{FaceError, FaceSurface};
 use crate::Real;
 use crate::depth::PhotoFit;
+use crate::geometry::{bounding_box, polygon_contains};
 use crate::mesh::{TextureCoordinates, TriangleMesh};
-use crate::reference::polygon_contains;
 
 /// How the face region is triangulated.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -106,11 +106,7 @@ impl FaceSurface {
         let spacing = options.spacing;
         let frame = self.frame();
         let polygon: Vec<Point2<Real>> = self.clip().iter().map(|p| frame.position(p.x, p.y)).collect();
-        let (mut lo, mut hi) = (polygon[0], polygon[0]);
-        for p in &polygon {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let (lo, hi) = bounding_box(&polygon).expect("a clip polygon has points");
         let too_fine = |count: Real| count > MAX_VERTICES as Real;
         let columns = ((hi.x - lo.x) / spacing).floor() + 1.0;
         let rows = ((hi.y - lo.y) / spacing).floor() + 1.0;

@@ -47,7 +47,7 @@ use rayon::prelude::*;
 
 use super::{ClippedMesh, FaceError, FaceSurface, RefinedCamera};
 use crate::Real;
-use crate::reference::edge_crossing;
+use crate::geometry::edge_crossing;
 
 /// The depth buffer's grid: one quad every this many texels of the atlas.
 pub const OCCLUDER_STRIDE: usize = 4;
@@ -180,11 +180,7 @@ impl FaceTexture {
         const YAWS: [Real; 5] = [-60.0, -30.0, 0.0, 30.0, 60.0];
         const SIZE: (usize, usize) = (320, 400);
         let textured = mesh.parameter_textured();
-        let (mut lo, mut hi) = (textured.positions()[0], textured.positions()[0]);
-        for p in textured.positions() {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let (lo, hi) = crate::geometry::bounding_box(textured.positions()).expect("a mesh has vertices");
         let centre = nalgebra::center(&lo, &hi);
         let extent = (hi - lo).max().max(Real::MIN_POSITIVE);
         let distance = 6.0 * extent;

@@ -866,13 +866,8 @@ impl Reconstruction {
     fn depth_map_of(&self, mesh: &TriangleMesh) -> Result<DepthMap, PipelineError> {
         let size = self.options.depth_map_size;
         let view = View::front();
-        let (lo, hi) = mesh.positions().iter().fold(
-            (
-                Point3::from([Real::INFINITY; 3]),
-                Point3::from([Real::NEG_INFINITY; 3]),
-            ),
-            |(lo, hi), p| (lo.inf(p), hi.sup(p)),
-        );
+        let (lo, hi) =
+            crate::geometry::bounding_box(mesh.positions()).unwrap_or((Point3::origin(), Point3::origin()));
         let aspect = (hi.y - lo.y) / (hi.x - lo.x).max(Real::MIN_POSITIVE);
         let (w, h) = if aspect >= 1.0 {
             (((size as Real) / aspect).round().max(1.0) as usize, size)

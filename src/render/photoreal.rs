@@ -278,11 +278,7 @@ impl ShadowMap {
         let turn = UnitQuaternion::rotation_between(towards_light, &Vector3::z())
             .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
         let turned: Vec<Point3<Real>> = mesh.positions().iter().map(|p| turn * p).collect();
-        let (mut lo, mut hi) = (turned[0], turned[0]);
-        for p in &turned {
-            lo = lo.inf(p);
-            hi = hi.sup(p);
-        }
+        let (lo, hi) = crate::geometry::bounding_box(&turned).expect("a mesh has vertices");
         let side = 1024usize;
         let spacing = ((hi.x - lo.x).max(hi.y - lo.y) / (side as Real - 2.0)).max(1e-9);
         let raster = crate::mesh::Raster {

@@ -364,7 +364,7 @@ fn the_atlas_is_inside_the_clip_region_exactly_where_the_polygon_test_says() {
     for (k, source) in texture.sources.iter().enumerate() {
         let (x, y) = (k % 200, k / 200);
         let p = nalgebra::Point2::new((x as Real + 0.5) / 200.0, 1.0 - (y as Real + 0.5) / 200.0);
-        let inside = splineface::reference::polygon_contains(face.clip(), p);
+        let inside = splineface::geometry::polygon_contains(face.clip(), p);
         assert_eq!(*source != TexelSource::Outside, inside, "texel ({x}, {y})");
     }
 }

@@ -1,0 +1,53 @@
+//! Small geometric helpers that several stages share: bounding boxes and planar polygons.
+
+use nalgebra::{Point, Point2};
+
+use crate::Real;
+
+/// The smallest axis-aligned box holding `points`, as its lower and upper corners; `None` for
+/// no points. Coordinates that are NaN are passed over (`f64::min` and `max` ignore them).
+///
+/// # Examples
+/// ```
+/// use nalgebra::Point2;
+/// use splineface::geometry::bounding_box;
+///
+/// let points = [Point2::new(1.0, 5.0), Point2::new(-2.0, 3.0), Point2::new(0.5, 7.0)];
+/// assert_eq!(bounding_box(&points), Some((Point2::new(-2.0, 3.0), Point2::new(1.0, 7.0))));
+/// assert_eq!(bounding_box::<2>(&[]), None);
+/// ```
+pub fn bounding_box<'a, const D: usize>(
+    points: impl IntoIterator<Item = &'a Point<Real, D>>,
+) -> Option<(Point<Real, D>, Point<Real, D>)> {
+    let mut points = points.into_iter();
+    let first = *points.next()?;
+    Some(points.fold((first, first), |(lo, hi), p| (lo.inf(p), hi.sup(p))))
+}
+
+/// Whether `p` lies inside `polygon` (even-odd rule; points on the boundary may go either way).
+///
+/// # Examples
+/// ```
+/// use nalgebra::Point2;
+/// use splineface::geometry::polygon_contains;
+///
+/// let square = [Point2::new(0.0, 0.0), Point2::new(2.0, 0.0), Point2::new(2.0, 2.0), Point2::new(0.0, 2.0)];
+/// assert!(polygon_contains(&square, Point2::new(1.0, 1.0)));
+/// assert!(!polygon_contains(&square, Point2::new(3.0, 1.0)));
+/// ```
+pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
+    let mut inside = false;
+    for k in 0..polygon.len() {
+        let (a, b) = (polygon[k], polygon[(k + 1) % polygon.len()]);
+        if edge_crossing(a, b, p.y).is_some_and(|x| p.x < x) {
+            inside = !inside;
+        }
+    }
+    inside
+}
+
+/// Where the edge `ab` crosses the line at height `y`, under [`polygon_contains`]'s rule (an
+/// edge counts when exactly one end lies above `y`); `None` when it does not cross.
+pub(crate) fn edge_crossing(a: Point2<Real>, b: Point2<Real>, y: Real) -> Option<Real> {
+    ((a.y > y) != (b.y > y)).then(|| a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x))
+}
