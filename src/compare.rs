@@ -534,6 +534,22 @@ fn icp(
 /// [`CompareError::Structure`] for a bad structure, [`CompareError::Option`] for a size out of
 /// range, [`CompareError::NoOverlap`] when the aligned meshes do not overlap,
 /// [`CompareError::Mesh`] when the truth cannot be indexed.
+///
+/// # Examples
+/// ```
+/// use splineface::compare::{CompareOptions, compare};
+/// use splineface::face::{MeanFace, MeshOptions, Units};
+/// use splineface::reference::ReferenceFace;
+///
+/// let truth = MeanFace::new(ReferenceFace::embedded(), Units::default(), &MeshOptions { spacing: 2.0 }).unwrap();
+/// // The same face 3 mm closer to the viewer: the structures align it back exactly.
+/// let moved = truth.mesh.transformed(&nalgebra::convert(nalgebra::Translation3::new(0.0, 0.0, 3.0)));
+/// let moved_structure: Vec<_> = truth.structure.iter().map(|p| p + nalgebra::Vector3::z() * 3.0).collect();
+/// let options = CompareOptions { size: 128, ..CompareOptions::default() };
+/// let result = compare(&moved, &truth.mesh, Some((&moved_structure, &truth.structure)), &options).unwrap();
+/// assert!(result.stats.depth_error.mean < 1e-6);
+/// assert!((result.stats.alignment.scale - 1.0).abs() < 1e-9);
+/// ```
 pub fn compare(
     reconstruction: &TriangleMesh,
     truth: &TriangleMesh,

@@ -282,6 +282,20 @@ impl FaceSurface {
     /// [`FaceError::FlatReference`]; [`FaceError::Degenerate`] when `Tr_f` is singular or
     /// mirrors (its determinant is not positive, or under 10⁻⁶ of the scale cubed);
     /// [`FaceError::Option`] for a smoothness that is not positive and finite.
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::face::{Deformation, FaceSurface};
+    /// use splineface::reference::ReferenceFace;
+    ///
+    /// let reference = ReferenceFace::embedded();
+    /// // A face 10% wider than the reference: x scaled about the origin between the eyes.
+    /// let wider: Vec<_> = reference.structure().iter().map(|p| nalgebra::Point3::new(1.1 * p.x, p.y, p.z)).collect();
+    /// let face = FaceSurface::deform(reference, &wider, Deformation::Affine).unwrap();
+    /// // The affine deformation is that scaling: every point of the surface moved with it.
+    /// let (a, b) = (reference.surface().eval(0.4, 0.6).unwrap(), face.surface().eval(0.4, 0.6).unwrap());
+    /// assert!((b.x - 1.1 * a.x).abs() < 1e-9 && (b.y - a.y).abs() < 1e-9);
+    /// ```
     pub fn deform(
         reference: &ReferenceFace,
         structure: &[Point3<Real>],

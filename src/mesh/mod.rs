@@ -304,6 +304,23 @@ impl MeshFormat {
 ///
 /// # Errors
 /// A [`MeshError`] naming the file and the first problem.
+///
+/// # Examples
+/// ```
+/// use splineface::mesh::read_mesh;
+///
+/// let path = std::env::temp_dir().join(format!("read-mesh-example-{}.obj", std::process::id()));
+/// std::fs::write(&path, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+/// let mesh = read_mesh(&path).unwrap();
+/// assert_eq!((mesh.positions().len(), mesh.triangles(), mesh.positions()[1].x), (3, &[[0, 1, 2]][..], 1.0));
+///
+/// // An error names the file and the problem.
+/// std::fs::write(&path, "v 0 0 nan\n").unwrap();
+/// let error = read_mesh(&path).unwrap_err();
+/// assert_eq!(error.file, path);
+/// assert!(error.to_string().contains("not finite"), "{error}");
+/// # std::fs::remove_file(&path).unwrap();
+/// ```
 pub fn read_mesh(path: &Path) -> Result<TriangleMesh, MeshError> {
     let error = |problem| MeshError {
         file: path.to_path_buf(),

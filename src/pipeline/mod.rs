@@ -376,6 +376,24 @@ pub struct Reconstruction {
 /// [`PipelineError::NoInputs`] for an empty list, [`PipelineError::TooFewPhotos`] when fewer
 /// than [`PipelineOptions::min_photos`] inputs are given or survive alignment, else the failing
 /// stage's error.
+///
+/// # Examples
+/// ```
+/// use splineface::demo::{SceneOptions, scene};
+/// use splineface::pipeline::{Input, PipelineOptions, reconstruct};
+/// use splineface::reference::ReferenceFace;
+///
+/// // Four photos of the demo subject; their points alone (no images: no RASL, refinement or
+/// // texture), which is quick.
+/// let photos = scene(&SceneOptions { photos: 4, ..SceneOptions::default() }).unwrap();
+/// let points: Vec<Input> = photos.inputs.iter().map(|i| Input { points: i.points.clone(), image: None }).collect();
+/// let face = reconstruct(&points, ReferenceFace::embedded(), &PipelineOptions::default(), |stage| eprintln!("{stage}")).unwrap();
+/// assert_eq!(face.depth.photos.len(), 4);
+/// assert!(face.mesh.mesh.triangles().len() > 1000);
+/// // Files as `splineface reconstruct` writes them.
+/// let files = face.files().unwrap();
+/// assert!(files.iter().any(|(path, _)| path.ends_with("face.glb")));
+/// ```
 pub fn reconstruct(
     inputs: &[Input],
     reference: &ReferenceFace,

@@ -175,6 +175,22 @@ pub struct DepthMap {
 
 impl DepthMap {
     /// Renders `mesh` seen from `view` over `raster`.
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::mesh::TriangleMesh;
+    /// use splineface::render::{DepthMap, View, frame_raster};
+    /// use nalgebra::Point3;
+    ///
+    /// // A square tilted about y: its height rises with x.
+    /// let p = |x: f64, y: f64| Point3::new(x, y, 0.5 * x);
+    /// let square = TriangleMesh::new(vec![p(0., 0.), p(1., 0.), p(1., 1.), p(0., 1.)], vec![[0, 1, 2], [0, 2, 3]]).unwrap();
+    /// let raster = frame_raster(square.positions().iter().copied(), &View::front(), 64, 64, 0.1).unwrap();
+    /// let map = DepthMap::render(&square, &View::front(), &raster);
+    /// assert!(map.covered() > 2000); // the square fills most of the 64 × 64 raster
+    /// let (lo, hi) = map.range().unwrap();
+    /// assert!(lo >= 0.0 && hi <= 0.5 && hi - lo > 0.45);
+    /// ```
     pub fn render(mesh: &TriangleMesh, view: &View, raster: &Raster) -> Self {
         let turned: Vec<Point3<Real>> = mesh.positions().iter().map(|p| view.apply(p)).collect();
         DepthMap {
