@@ -28,6 +28,7 @@
 //! Everything is computed before anything is written, so a caller can write the files all or
 //! nothing ([`crate::io::write_files_atomically`]).
 
+pub mod files;
 mod photos;
 mod settings;
 
@@ -38,29 +39,23 @@ pub use photos::{
 };
 pub use settings::Settings;
 
-use std::path::PathBuf;
 use std::time::Instant;
 
 use nalgebra::Point3;
-use serde_json::json;
 
 use crate::Real;
 use crate::align::{
     AlignError, Dropped, FrontalStructure, GreyImage, PhotoPoints, RaslOptions, RaslPhoto, RaslResult,
     disagreeing_photos, landmark_agreement, procrustes_frontal, rasl_frontal,
 };
-use crate::bspline::{StepOptions, encode_step};
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
 use crate::face::{
     ClippedMesh, Deformation, FaceError, FaceSurface, FaceTexture, MeshOptions, RefineOptions, RefineView,
     RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
 };
-use crate::io::encode_png;
-use crate::mesh::{PlyEncoding, TriangleMesh, encode_ply};
-use crate::mesh::{PngTexture, encode_glb};
+use crate::mesh::TriangleMesh;
 use crate::reference::ReferenceFace;
-use crate::render::{DepthMap, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png};
-use crate::structure::{LEFT_EYE_CENTRE, RIGHT_EYE_CENTRE};
+use crate::render::{DepthMap, View, frame_raster};
 
 /// A photo's image: grey for alignment, colour for the texture.
 #[derive(Debug, Clone)]
@@ -825,31 +820,6 @@ fn texture_from_photos(
     Ok(Ok((texture, names)))
 }
 
-/// The consistency map as a picture: the photos' disagreement on the landmark fit's face
-/// (left) and on the refined one (right), each sample a 4 × 4 block, on one scale (0 to 1
-/// normalised intensity; dark where fewer than two photos see the face).
-fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, crate::io::EncodeError> {
-    const BLOCK: usize = 4;
-    let (w, h) = (map.width, map.height);
-    let gap = 4;
-    let width = (2 * w + gap) * BLOCK;
-    let height = h * BLOCK;
-    let mut values = vec![Real::NAN; width * height];
-    for (side, grid) in [(0, &map.before), (w + gap, &map.after)] {
-        for r in 0..h {
-            for c in 0..w {
-                let v = grid[r * w + c];
-                for dr in 0..BLOCK {
-                    for dc in 0..BLOCK {
-                        values[(r * BLOCK + dr) * width + (side + c) * BLOCK + dc] = v;
-                    }
-                }
-            }
-        }
-    }
-    crate::render::heatmap_png(&values, width, height, 1.0, "")
-}
-
 fn encode_error<E: std::fmt::Display>(file: &str) -> impl Fn(E) -> PipelineError + '_ {
     move |error| PipelineError::Encode {
         file: file.to_owned(),
@@ -895,252 +865,5 @@ impl Reconstruction {
         let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)
             .map_err(encode_error("depth.exr"))?;
         Ok(DepthMap::render(mesh, &view, &raster))
-    }
-
-    /// Every output file, as `(path relative to the output directory, bytes)`: see the module
-    /// documentation.
-    ///
-    /// # Errors
-    /// [`PipelineError::Encode`] naming the output that could not be encoded.
-    pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
-        let start = Instant::now();
-        let units = self.options.units;
-        let to_units = units.transform();
-        let scale = units.per_canonical_unit();
-        let mesh = self.output_mesh();
-        let surface = self.face.surface().transformed(&to_units);
-        let mut files: Vec<(PathBuf, Vec<u8>)> = Vec::new();
-
-        // Meshes.
-        match &self.texture {
-            Some(texture) => {
-                let png = encode_png(&texture.atlas).map_err(encode_error("face.png"))?;
-                let obj = crate::mesh::format_obj_with_material(&mesh, Some(("face.mtl", "face")));
-                files.push(("face.obj".into(), obj.into_bytes()));
-                files.push((
-                    "face.mtl".into(),
-                    crate::mesh::format_mtl("face.png").into_bytes(),
-                ));
-                files.push((
-                    "face.glb".into(),
-                    encode_glb(&mesh, "face", Some(PngTexture { png: &png })),
-                ));
-                files.push(("face.png".into(), png));
-                files.push((
-                    "texture-confidence.png".into(),
-                    encode_png(&texture.confidence_image())
-                        .map_err(encode_error("texture-confidence.png"))?,
-                ));
-                let turntable = texture
-                    .turntable(&self.mesh)
-                    .map_err(encode_error("turntable.png"))?;
-                files.push((
-                    "turntable.png".into(),
-                    encode_png(&turntable).map_err(encode_error("turntable.png"))?,
-                ));
-            }
-            None => {
-                files.push(("face.obj".into(), crate::mesh::format_obj(&mesh).into_bytes()));
-                files.push(("face.glb".into(), encode_glb(&mesh, "face", None)));
-            }
-        }
-        files.push((
-            "face.ply".into(),
-            encode_ply(&mesh, PlyEncoding::BinaryLittleEndian),
-        ));
-
-        // The exact surface.
-        files.push(("surface.json".into(), surface.to_json().into_bytes()));
-        let outline: Vec<Point3<Real>> = self
-            .face
-            .clip()
-            .iter()
-            .filter_map(|p| surface.eval(p.x, p.y).ok())
-            .collect();
-        let description = match units {
-            Units::Millimetres { eye_distance } => {
-                format!("splineface face, millimetres ({eye_distance} mm between the eye centres), x right, y up, z toward the viewer")
-            }
-            Units::Canonical => "splineface face, canonical units (50 between the eye centres), x right, y up, z toward the viewer".to_owned(),
-        };
-        let step = encode_step(
-            &surface,
-            &StepOptions {
-                name: "face",
-                description: &description,
-                millimetres: matches!(units, Units::Millimetres { .. }),
-                outline: &outline,
-            },
-        );
-        files.push(("surface.step".into(), step.into_bytes()));
-
-        // The depth map, from the front.
-        let map = self.depth_map_of(&mesh)?;
-        let exr = encode_depth_exr(&map).map_err(|e| encode_error("depth.exr")(e.to_string()))?;
-        let png = encode_depth_png(&map).map_err(|e| encode_error("depth.png")(e.to_string()))?;
-        let preview = shaded_png(&map).map_err(|e| encode_error("preview.png")(e.to_string()))?;
-        files.push(("depth.exr".into(), exr));
-        files.push(("depth.png".into(), png));
-        files.push(("preview.png".into(), preview));
-
-        // Where the photos agree, before and after the refinement.
-        if let Some(refinement) = &self.refinement {
-            files.push((
-                "consistency.png".into(),
-                consistency_png(&refinement.map).map_err(encode_error("consistency.png"))?,
-            ));
-        }
-
-        // RASL's pictures.
-        if let Some(rasl) = &self.rasl {
-            for (name, bytes) in rasl.images().map_err(encode_error("aligned/"))? {
-                files.push((PathBuf::from("aligned").join(name), bytes));
-            }
-        }
-
-        // structure.json and report.json.
-        let structure = self.structure();
-        let point = |p: &Point3<Real>| json!([p.x, p.y, p.z]);
-        let photos: Vec<serde_json::Value> = self
-            .depth
-            .photos
-            .iter()
-            .zip(&self.photo_fits)
-            .map(|(p, fit)| {
-                let [yaw, pitch, roll] = p.pose.yaw_pitch_roll_degrees();
-                json!({
-                    "name": p.name,
-                    "yaw_degrees": yaw,
-                    "pitch_degrees": pitch,
-                    "roll_degrees": roll,
-                    "pixels_per_unit": p.pose.scale / scale,
-                    "rms_pixels": p.rms_pixels,
-                    "rms_units": p.rms_units * scale,
-                    "fit_rms_pixels": fit.rms_pixels,
-                })
-            })
-            .collect();
-        let structure_json = json!({
-            "format": "splineface/structure",
-            "version": 1,
-            "units": units.name(),
-            "per_canonical_unit": scale,
-            "frame": "x to the image's right, y up, z toward the viewer, origin between the eye centres",
-            "points": structure.iter().map(point).collect::<Vec<_>>(),
-            "eye_centres": { "right": point(&structure[RIGHT_EYE_CENTRE]), "left": point(&structure[LEFT_EYE_CENTRE]) },
-            "photos": photos,
-            "similarity": self.depth.similarity,
-            "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
-            "expressions": self.space.as_ref().filter(|s| !s.expression_names.is_empty()).map(|s| {
-                self.depth
-                    .photos
-                    .iter()
-                    .zip(&s.expressions)
-                    .map(|(p, e)| {
-                        let weights: serde_json::Map<String, serde_json::Value> = s
-                            .expression_names
-                            .iter()
-                            .zip(e)
-                            .filter(|(_, w)| **w > 0.0)
-                            .map(|(name, w)| (name.clone(), json!(w)))
-                            .collect();
-                        json!({ "name": p.name, "weights": weights })
-                    })
-                    .collect::<Vec<_>>()
-            }),
-        });
-        files.push((
-            "structure.json".into(),
-            serde_json::to_vec_pretty(&structure_json)
-                .map_err(|e| encode_error("structure.json")(e.to_string()))?,
-        ));
-        let mut timings: Vec<serde_json::Value> = self
-            .timings
-            .iter()
-            .map(|(stage, s)| json!({ "stage": stage, "ms": 1e3 * s }))
-            .collect();
-        timings.push(json!({ "stage": "outputs (encoding)", "ms": 1e3 * start.elapsed().as_secs_f64() }));
-        let report = self.face.report();
-        let report_json = json!({
-            "format": "splineface/report",
-            "version": 1,
-            "frontal_method": format!("{:?}", self.frontal.method),
-            "frontal_residual_rms_units": self.frontal.residual_rms,
-            "timings": timings,
-            "photos_used": self.depth.photos.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
-            "photos_dropped": self.dropped.iter().map(|d| json!({ "name": d.name, "reason": d.reason })).collect::<Vec<_>>(),
-            "landmark_agreement": self.agreement.iter().map(|(name, a)| json!({ "name": name, "agreement": a })).collect::<Vec<_>>(),
-            "warnings": self.depth.warnings.iter().map(ToString::to_string).collect::<Vec<_>>(),
-            "depth": {
-                "iterations": self.depth.iterations,
-                "converged": self.depth.converged,
-                "objective": self.depth.objective,
-                "similarity": self.depth.similarity,
-            },
-            "rasl": self.rasl.as_ref().map(|r| json!({
-                "outer_iterations": r.objective.len(),
-                "inner_iterations": r.inner_iterations,
-                "objective": r.objective,
-                "seconds": r.seconds,
-            })),
-            "surface": {
-                "shape": self.shape,
-                "space_weights": self.space.as_ref().map(|s| s.weights.clone()),
-                "space_rms_units": self.space.as_ref().map(|s| s.rms_units.clone()),
-                "space_held_modes": self.space.as_ref().map(|s| s.held.clone()),
-                "refinement": self.refinement.as_ref().map(|r| json!({
-                    "accepted": r.accepted,
-                    "note": r.note,
-                    "disagreement_before": r.disagreement.0,
-                    "disagreement_after": r.disagreement.1,
-                    "landmark_rms_units_before": r.landmark_rms.0,
-                    "landmark_rms_units_after": r.landmark_rms.1,
-                    "samples": r.samples.0,
-                    "samples_seen_twice": r.samples.1,
-                    "coverage": r.coverage,
-                    "iterations": r.iterations,
-                })),
-                "structure_weight": self.structure_weight.0,
-                "structure_weight_reason": self.structure_weight.1,
-                "deformation": if self.space.is_some() {
-                    "none (the face space's member)".to_owned()
-                } else {
-                    format!("{:?}", self.face.deformation())
-                },
-                "displacement_rms_units": report.displacement_rms,
-                "displacement_max_units": report.displacement_max,
-                "point_rms_units": report.point_rms,
-                "mesh_vertices": mesh.positions().len(),
-                "mesh_triangles": mesh.triangles().len(),
-                "textured": self.texture.is_some(),
-            },
-            "texture": match (&self.texture, &self.texture_photos) {
-                (Some(t), Ok(names)) => {
-                    let [seen, mirrored, filled] = t.counts();
-                    let inside = (seen + mirrored + filled).max(1) as Real;
-                    json!({
-                        "size": t.atlas.width(),
-                        "texels_inside": seen + mirrored + filled,
-                        "seen": seen as Real / inside,
-                        "mirrored": mirrored as Real / inside,
-                        "filled": filled as Real / inside,
-                        "sharpness": self.options.texture.sharpness,
-                        "photos": names.iter().zip(&t.gains).zip(&t.shares).map(|((name, gain), share)| json!({
-                            "name": name,
-                            "gain": gain,
-                            "share": share,
-                        })).collect::<Vec<_>>(),
-                    })
-                }
-                (_, Err(why)) => json!({ "none": why }),
-                (None, Ok(_)) => json!(null),
-            },
-        });
-        files.push((
-            "report.json".into(),
-            serde_json::to_vec_pretty(&report_json)
-                .map_err(|e| encode_error("report.json")(e.to_string()))?,
-        ));
-        Ok(files)
     }
 }
