@@ -395,59 +395,17 @@ pub fn reconstruct(
     options: &PipelineOptions,
     mut progress: impl FnMut(&str),
 ) -> Result<Reconstruction, PipelineError> {
-    if inputs.is_empty() {
-        return Err(PipelineError::NoInputs);
-    }
-    let needed = options.min_photos.max(1);
-    if inputs.len() < needed {
-        return Err(PipelineError::TooFewPhotos {
-            usable: inputs.len(),
-            needed,
-            dropped: Vec::new(),
-        });
-    }
-    if let Some(photo) = options.expression_of
-        && photo >= inputs.len()
-    {
-        return Err(PipelineError::ExpressionOf {
-            photo,
-            reason: format!("there are only {} photos", inputs.len()),
-        });
-    }
+    let needed = check_request(inputs, options)?;
     // The structure to deform from is where the photo path puts landmarks on the reference.
     let reference: &ReferenceFace = &reference.as_seen_in_photos();
     let mut timings = Vec::new();
     let with_images = inputs.iter().all(|i| i.image.is_some());
     let start = Instant::now();
-    // Photos whose landmarks mark other places of the face than the others' do.
-    let mut dropped: Vec<Dropped> = Vec::new();
-    let agreement: Vec<Real> = if with_images {
-        let pairs: Vec<(&GreyImage, &PhotoPoints)> = inputs
-            .iter()
-            .map(|i| (&i.image.as_ref().expect("checked above").grey, &i.points))
-            .collect();
-        landmark_agreement(&pairs)
-    } else {
-        vec![Real::NAN; inputs.len()]
-    };
-    let disagreeing = if options.drop_disagreeing {
-        disagreeing_photos(&agreement)
-    } else {
-        Vec::new()
-    };
-    for &(k, others) in &disagreeing {
-        dropped.push(Dropped {
-            name: inputs[k].points.name.clone(),
-            reason: format!(
-                "its landmarks do not mark the places the other photos' do (patch agreement {:.2}, the others' median {others:.2}): \
-                 the landmarker probably failed on it",
-                agreement[k]
-            ),
-        });
-    }
-    let agreeing: Vec<usize> = (0..inputs.len())
-        .filter(|k| !disagreeing.iter().any(|(d, _)| d == k))
-        .collect();
+    let Agreement {
+        scores: agreement,
+        agreeing,
+        mut dropped,
+    } = agreement(inputs, options, with_images);
     if agreeing.len() < needed {
         return Err(PipelineError::TooFewPhotos {
             usable: agreeing.len(),
@@ -457,31 +415,7 @@ pub fn reconstruct(
     }
     let names: Vec<String> = inputs.iter().map(|i| i.points.name.clone()).collect();
     let inputs: Vec<&Input> = agreeing.iter().map(|&k| &inputs[k]).collect();
-    let (frontal, rasl, kept): (FrontalStructure, Option<RaslResult>, Vec<usize>) = if with_images {
-        progress(&format!(
-            "aligning {} photos and their mirror images (RASL)",
-            inputs.len()
-        ));
-        let photos: Vec<RaslPhoto> = inputs
-            .iter()
-            .map(|i| RaslPhoto {
-                image: i.image.as_ref().expect("checked above").grey.clone(),
-                points: i.points.clone(),
-            })
-            .collect();
-        let result = rasl_frontal(&photos, &options.rasl)?;
-        let kept: Vec<usize> = (0..inputs.len())
-            .filter(|&k| result.kept.contains(&inputs[k].points.name))
-            .collect();
-        (result.frontal.clone(), Some(result), kept)
-    } else {
-        progress(&format!(
-            "frontal structure from the points of {} photos",
-            inputs.len()
-        ));
-        let points: Vec<PhotoPoints> = inputs.iter().map(|i| i.points.clone()).collect();
-        (procrustes_frontal(&points)?, None, (0..inputs.len()).collect())
-    };
+    let (frontal, rasl, kept) = frontal_structure(&inputs, options, with_images, &mut progress)?;
     timings.push(("frontal structure".to_owned(), start.elapsed().as_secs_f64()));
     dropped.extend(rasl.as_ref().map(|r| r.dropped.clone()).unwrap_or_default());
     if kept.len() < needed {
@@ -517,136 +451,35 @@ pub fn reconstruct(
     } else {
         "deforming the reference surface and meshing the face"
     });
-    let (structure_weight, weight_note) = match options.structure_weight {
-        StructureWeight::Fixed(alpha) => (alpha, "as asked".to_owned()),
-        StructureWeight::Auto => {
-            let mut errors: Vec<Real> = depth.photos.iter().map(|p| p.inner_rms_units).collect();
-            errors.sort_by(Real::total_cmp);
-            let sigma = errors[errors.len() / 2];
-            let n = depth.photos.len() as Real;
-            let disagree = depth.photos.len() == 2
-                && kept
-                    .iter()
-                    .all(|&k| agreement[agreeing[k]] < crate::align::AGREEMENT_FLOOR);
-            if disagree {
-                (
-                    0.0,
-                    "the two photos' landmarks disagree (patch agreement below its floor): the face is the reference's"
-                        .to_owned(),
-                )
-            } else {
-                let alpha = n / (n + SHRINKAGE * sigma * sigma);
-                (
-                    alpha,
-                    format!(
-                        "{n} photos whose points fit with a median RMS of {sigma:.2} units off the contour"
-                    ),
-                )
-            }
-        }
-    };
-    let mut refinement = None;
-    let mut surface_start = start;
-    let (face, space_fit, shape) = match &space {
+    let kept_agreement: Vec<Real> = kept.iter().map(|&k| agreement[agreeing[k]]).collect();
+    let (structure_weight, weight_note) = structure_weight(options, &depth, &kept_agreement);
+    let (face, space_fit, shape, refinement, surface_start) = match &space {
         Some((space, fit_options)) => {
-            let views: Vec<Vec<nalgebra::Point2<Real>>> =
-                kept.iter().map(|&k| inputs[k].points.y_up()).collect();
-            let weights = crate::structure::contour_weighted(options.depth.contour_weight);
-            let mut fit = space.fit_photos(&views, &weights, fit_options)?;
-            timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
-            if let (Some(refine), true) = (options.refine, with_images) {
-                progress("refining the face with the photos' pixels");
-                let start = Instant::now();
-                let dense: Vec<RefineView> = kept
-                    .iter()
-                    .zip(&views)
-                    .map(|(&k, v)| RefineView {
-                        image: &inputs[k].image.as_ref().expect("checked above").grey,
-                        points: v,
-                    })
-                    .collect();
-                let refined = space.refine_photos(reference, &fit, &dense, &weights, &refine)?;
-                if refined.accepted {
-                    fit.weights = refined.weights.clone();
-                }
-                timings.push(("refinement".to_owned(), start.elapsed().as_secs_f64()));
-                refinement = Some(refined);
-            }
-            surface_start = Instant::now();
-            let mut shape = format!(
-                "the reference's face space ({} modes) fitted to the points of {} photos, noise {} units",
-                space.mode_count(),
-                views.len(),
-                fit_options.noise
-            );
-            let fitted_expressions = !fit.expression_names.is_empty();
-            if fitted_expressions {
-                shape.push_str(&format!(
-                    ", with each photo's expression ({} modes, deviation {})",
-                    space.expressions().len(),
-                    fit_options.expression_sigma.unwrap_or_default()
-                ));
-            }
-            let face = match options.expression_of {
-                None => space.face(reference, &fit.weights)?,
-                Some(photo) => {
-                    let Some(slot) = kept.iter().position(|&k| k == photo) else {
-                        return Err(PipelineError::ExpressionOf {
-                            photo,
-                            reason: "it was left out of the reconstruction".to_owned(),
-                        });
-                    };
-                    if !fitted_expressions {
-                        return Err(PipelineError::ExpressionOf {
-                            photo,
-                            reason: "no expressions were fitted (the reference's space has none, or they were turned off)".to_owned(),
-                        });
-                    }
-                    shape.push_str(&format!(
-                        ", shown with the expression of {}",
-                        inputs[photo].points.name
-                    ));
-                    space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?
-                }
+            let photos = KeptPhotos {
+                inputs: &inputs,
+                kept: &kept,
+                with_images,
             };
-            if !fit.held.is_empty() {
-                shape.push_str(&format!(
-                    "; modes {:?} left the prior's plausible range (±{} deviations) and were held at its edge",
-                    fit.held,
-                    crate::face::PLAUSIBLE_SIGMAS
-                ));
-            }
-            let mut face = face;
-            if let Some(r) = &refinement {
-                shape.push_str(&format!("; {}", r.note));
-                if r.accepted && !r.displacement.is_empty() {
-                    face = face.displaced(&r.displacement)?;
-                    shape.push_str(", with a displacement of the control grid");
-                }
-            }
-            (face, Some(fit), shape)
+            let fitted = space_face(
+                space,
+                fit_options,
+                reference,
+                &photos,
+                options,
+                (&mut timings, start),
+                &mut progress,
+            )?;
+            (
+                fitted.face,
+                Some(fitted.fit),
+                fitted.shape,
+                fitted.refinement,
+                fitted.surface_start,
+            )
         }
         None => {
-            if let Some(photo) = options.expression_of {
-                return Err(PipelineError::ExpressionOf {
-                    photo,
-                    reason: "the face is the deformed reference (no face space was fitted), which has no expressions"
-                        .to_owned(),
-                });
-            }
-            let target = crate::face::shrunk_toward_reference(reference, &depth.structure, structure_weight)?;
-            let shape = match options.shape {
-                Shape::Space { .. } => {
-                    "the reference deformed to the estimated structure (the reference has no face space)"
-                        .to_owned()
-                }
-                Shape::Deformed => "the reference deformed to the estimated structure".to_owned(),
-            };
-            (
-                FaceSurface::deform(reference, &target, options.deformation)?,
-                None,
-                shape,
-            )
+            let (face, shape) = deformed_face(reference, &depth, structure_weight, options)?;
+            (face, None, shape, None, start)
         }
     };
     let mesh = face.mesh(&options.mesh)?;
@@ -695,6 +528,291 @@ pub fn reconstruct(
         timings,
         options: *options,
     })
+}
+
+/// The request's own checks, before any work: some inputs, at least the minimum of photos,
+/// and a photo for [`PipelineOptions::expression_of`] that exists. Returns the minimum.
+fn check_request(inputs: &[Input], options: &PipelineOptions) -> Result<usize, PipelineError> {
+    if inputs.is_empty() {
+        return Err(PipelineError::NoInputs);
+    }
+    let needed = options.min_photos.max(1);
+    if inputs.len() < needed {
+        return Err(PipelineError::TooFewPhotos {
+            usable: inputs.len(),
+            needed,
+            dropped: Vec::new(),
+        });
+    }
+    if let Some(photo) = options.expression_of
+        && photo >= inputs.len()
+    {
+        return Err(PipelineError::ExpressionOf {
+            photo,
+            reason: format!("there are only {} photos", inputs.len()),
+        });
+    }
+    Ok(needed)
+}
+
+/// Stage 0's answer: each photo's landmark agreement with the others (`NaN` without images),
+/// the photos kept, and those left out with why.
+struct Agreement {
+    scores: Vec<Real>,
+    agreeing: Vec<usize>,
+    dropped: Vec<Dropped>,
+}
+
+/// Stage 0: photos whose landmarks mark other places of the face than the others' do are left
+/// out (with images and [`PipelineOptions::drop_disagreeing`]).
+fn agreement(inputs: &[Input], options: &PipelineOptions, with_images: bool) -> Agreement {
+    let scores: Vec<Real> = if with_images {
+        let pairs: Vec<(&GreyImage, &PhotoPoints)> = inputs
+            .iter()
+            .map(|i| (&i.image.as_ref().expect("checked above").grey, &i.points))
+            .collect();
+        landmark_agreement(&pairs)
+    } else {
+        vec![Real::NAN; inputs.len()]
+    };
+    let disagreeing = if options.drop_disagreeing {
+        disagreeing_photos(&scores)
+    } else {
+        Vec::new()
+    };
+    let dropped = disagreeing
+        .iter()
+        .map(|&(k, others)| Dropped {
+            name: inputs[k].points.name.clone(),
+            reason: format!(
+                "its landmarks do not mark the places the other photos' do (patch agreement {:.2}, the others' median {others:.2}): \
+                 the landmarker probably failed on it",
+                scores[k]
+            ),
+        })
+        .collect();
+    let agreeing = (0..inputs.len())
+        .filter(|k| !disagreeing.iter().any(|(d, _)| d == k))
+        .collect();
+    Agreement {
+        scores,
+        agreeing,
+        dropped,
+    }
+}
+
+/// Stage 1: the frontal structure, by RASL over the photos with images, else from the points
+/// alone; with the indices (into `inputs`) of the photos kept.
+fn frontal_structure(
+    inputs: &[&Input],
+    options: &PipelineOptions,
+    with_images: bool,
+    progress: &mut impl FnMut(&str),
+) -> Result<(FrontalStructure, Option<RaslResult>, Vec<usize>), PipelineError> {
+    if with_images {
+        progress(&format!(
+            "aligning {} photos and their mirror images (RASL)",
+            inputs.len()
+        ));
+        let photos: Vec<RaslPhoto> = inputs
+            .iter()
+            .map(|i| RaslPhoto {
+                image: i.image.as_ref().expect("checked above").grey.clone(),
+                points: i.points.clone(),
+            })
+            .collect();
+        let result = rasl_frontal(&photos, &options.rasl)?;
+        let kept: Vec<usize> = (0..inputs.len())
+            .filter(|&k| result.kept.contains(&inputs[k].points.name))
+            .collect();
+        Ok((result.frontal.clone(), Some(result), kept))
+    } else {
+        progress(&format!(
+            "frontal structure from the points of {} photos",
+            inputs.len()
+        ));
+        let points: Vec<PhotoPoints> = inputs.iter().map(|i| i.points.clone()).collect();
+        Ok((procrustes_frontal(&points)?, None, (0..inputs.len()).collect()))
+    }
+}
+
+/// How far the deformed surface follows the estimated structure ([`StructureWeight`]), and
+/// why; `agreement` is each kept photo's landmark agreement.
+fn structure_weight(options: &PipelineOptions, depth: &DepthEstimate, agreement: &[Real]) -> (Real, String) {
+    match options.structure_weight {
+        StructureWeight::Fixed(alpha) => (alpha, "as asked".to_owned()),
+        StructureWeight::Auto => {
+            let mut errors: Vec<Real> = depth.photos.iter().map(|p| p.inner_rms_units).collect();
+            errors.sort_by(Real::total_cmp);
+            let sigma = errors[errors.len() / 2];
+            let n = depth.photos.len() as Real;
+            let disagree =
+                depth.photos.len() == 2 && agreement.iter().all(|&a| a < crate::align::AGREEMENT_FLOOR);
+            if disagree {
+                (
+                    0.0,
+                    "the two photos' landmarks disagree (patch agreement below its floor): the face is the reference's"
+                        .to_owned(),
+                )
+            } else {
+                let alpha = n / (n + SHRINKAGE * sigma * sigma);
+                (
+                    alpha,
+                    format!(
+                        "{n} photos whose points fit with a median RMS of {sigma:.2} units off the contour"
+                    ),
+                )
+            }
+        }
+    }
+}
+
+/// The photos the stages after alignment work with: `kept` indexes `inputs`.
+struct KeptPhotos<'a> {
+    inputs: &'a [&'a Input],
+    kept: &'a [usize],
+    with_images: bool,
+}
+
+/// Stage 3 by the face space: its fit, the face, how it was made, the refinement when it ran,
+/// and when the surface's own timing starts.
+struct SpaceFace {
+    face: FaceSurface,
+    fit: crate::face::PhotoSpaceFit,
+    shape: String,
+    refinement: Option<Refinement>,
+    surface_start: Instant,
+}
+
+/// Stage 3 by the face space: fitted to the kept photos' points, refined by their pixels (with
+/// images and [`PipelineOptions::refine`]), shown neutral or with a photo's expression.
+/// `timing` is the timings and when the stage started.
+fn space_face(
+    space: &crate::face::FaceSpace,
+    fit_options: &crate::face::PhotoFitOptions,
+    reference: &ReferenceFace,
+    photos: &KeptPhotos<'_>,
+    options: &PipelineOptions,
+    timing: (&mut Vec<(String, Real)>, Instant),
+    progress: &mut impl FnMut(&str),
+) -> Result<SpaceFace, PipelineError> {
+    let (timings, start) = timing;
+    let KeptPhotos {
+        inputs,
+        kept,
+        with_images,
+    } = *photos;
+    let views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
+    let weights = crate::structure::contour_weighted(options.depth.contour_weight);
+    let mut fit = space.fit_photos(&views, &weights, fit_options)?;
+    timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
+    let mut refinement = None;
+    if let (Some(refine), true) = (options.refine, with_images) {
+        progress("refining the face with the photos' pixels");
+        let start = Instant::now();
+        let dense: Vec<RefineView> = kept
+            .iter()
+            .zip(&views)
+            .map(|(&k, v)| RefineView {
+                image: &inputs[k].image.as_ref().expect("checked above").grey,
+                points: v,
+            })
+            .collect();
+        let refined = space.refine_photos(reference, &fit, &dense, &weights, &refine)?;
+        if refined.accepted {
+            fit.weights = refined.weights.clone();
+        }
+        timings.push(("refinement".to_owned(), start.elapsed().as_secs_f64()));
+        refinement = Some(refined);
+    }
+    let surface_start = Instant::now();
+    let mut shape = format!(
+        "the reference's face space ({} modes) fitted to the points of {} photos, noise {} units",
+        space.mode_count(),
+        views.len(),
+        fit_options.noise
+    );
+    let fitted_expressions = !fit.expression_names.is_empty();
+    if fitted_expressions {
+        shape.push_str(&format!(
+            ", with each photo's expression ({} modes, deviation {})",
+            space.expressions().len(),
+            fit_options.expression_sigma.unwrap_or_default()
+        ));
+    }
+    let mut face = match options.expression_of {
+        None => space.face(reference, &fit.weights)?,
+        Some(photo) => {
+            let Some(slot) = kept.iter().position(|&k| k == photo) else {
+                return Err(PipelineError::ExpressionOf {
+                    photo,
+                    reason: "it was left out of the reconstruction".to_owned(),
+                });
+            };
+            if !fitted_expressions {
+                return Err(PipelineError::ExpressionOf {
+                    photo,
+                    reason:
+                        "no expressions were fitted (the reference's space has none, or they were turned off)"
+                            .to_owned(),
+                });
+            }
+            shape.push_str(&format!(
+                ", shown with the expression of {}",
+                inputs[photo].points.name
+            ));
+            space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?
+        }
+    };
+    if !fit.held.is_empty() {
+        shape.push_str(&format!(
+            "; modes {:?} left the prior's plausible range (±{} deviations) and were held at its edge",
+            fit.held,
+            crate::face::PLAUSIBLE_SIGMAS
+        ));
+    }
+    if let Some(r) = &refinement {
+        shape.push_str(&format!("; {}", r.note));
+        if r.accepted && !r.displacement.is_empty() {
+            face = face.displaced(&r.displacement)?;
+            shape.push_str(", with a displacement of the control grid");
+        }
+    }
+    Ok(SpaceFace {
+        face,
+        fit,
+        shape,
+        refinement,
+        surface_start,
+    })
+}
+
+/// Stage 3 without a face space: the reference deformed to the estimated structure, shrunk
+/// toward the reference's by `weight` ([`StructureWeight`]); and how it was made.
+fn deformed_face(
+    reference: &ReferenceFace,
+    depth: &DepthEstimate,
+    weight: Real,
+    options: &PipelineOptions,
+) -> Result<(FaceSurface, String), PipelineError> {
+    if let Some(photo) = options.expression_of {
+        return Err(PipelineError::ExpressionOf {
+            photo,
+            reason: "the face is the deformed reference (no face space was fitted), which has no expressions"
+                .to_owned(),
+        });
+    }
+    let target = crate::face::shrunk_toward_reference(reference, &depth.structure, weight)?;
+    let shape = match options.shape {
+        Shape::Space { .. } => {
+            "the reference deformed to the estimated structure (the reference has no face space)".to_owned()
+        }
+        Shape::Deformed => "the reference deformed to the estimated structure".to_owned(),
+    };
+    Ok((
+        FaceSurface::deform(reference, &target, options.deformation)?,
+        shape,
+    ))
 }
 
 /// How the face fits each kept photo ([`PhotoFit`]): its last fitted camera (the
