@@ -276,11 +276,17 @@ pub enum CompareError {
     )]
     NoOverlap,
     /// An option is out of range.
-    #[error("{0}")]
-    Option(String),
+    #[error("{message}")]
+    Option {
+        /// Which, and its range.
+        message: String,
+    },
     /// A mesh could not be built (should not happen for valid input).
-    #[error("the aligned mesh: {0}")]
-    Mesh(String),
+    #[error("the aligned mesh: {message}")]
+    Mesh {
+        /// Why.
+        message: String,
+    },
 }
 
 /// Summary statistics of a set of non-negative errors, mm.
@@ -557,18 +563,20 @@ pub fn compare(
     options: &CompareOptions,
 ) -> Result<Comparison, CompareError> {
     if !(16..=crate::render::MAX_SIDE).contains(&options.size) {
-        return Err(CompareError::Option(format!(
-            "size {} must be between 16 and {}",
-            options.size,
-            crate::render::MAX_SIDE
-        )));
+        return Err(CompareError::Option {
+            message: format!(
+                "size {} must be between 16 and {}",
+                options.size,
+                crate::render::MAX_SIDE
+            ),
+        });
     }
     if let Some(max) = options.heatmap_max
         && !(max > 0.0 && max.is_finite())
     {
-        return Err(CompareError::Option(format!(
-            "heatmap maximum {max} must be positive"
-        )));
+        return Err(CompareError::Option {
+            message: format!("heatmap maximum {max} must be positive"),
+        });
     }
     let indexed = ClosestPoints::new(truth);
     // Into the truth's frame, then into the view frame.
@@ -626,7 +634,9 @@ pub fn compare(
         aligned_points.iter().map(to_view).collect(),
         reconstruction.triangles().to_vec(),
     )
-    .map_err(|e| CompareError::Mesh(e.to_string()))?;
+    .map_err(|e| CompareError::Mesh {
+        message: e.to_string(),
+    })?;
     let truth_view = truth.transformed(&nalgebra::Affine3::from_matrix_unchecked(
         view_map.to_homogeneous(),
     ));
@@ -651,7 +661,9 @@ pub fn compare(
         h.max(1),
         0.02,
     )
-    .map_err(|e| CompareError::Option(e.to_string()))?;
+    .map_err(|e| CompareError::Option {
+        message: e.to_string(),
+    })?;
     let rec_map = DepthMap::render(&aligned, &front, &raster);
     let truth_map = DepthMap::render(&truth_view, &front, &raster);
 
@@ -840,16 +852,14 @@ pub fn inner_face_score(
     check_structure(rec, "reconstruction")?;
     check_structure(tru, "truth")?;
     if !(options.spacing > 0.0 && options.spacing.is_finite()) {
-        return Err(CompareError::Option(format!(
-            "inner-face spacing {} must be positive",
-            options.spacing
-        )));
+        return Err(CompareError::Option {
+            message: format!("inner-face spacing {} must be positive", options.spacing),
+        });
     }
     if !(0.0..0.9).contains(&options.trim) {
-        return Err(CompareError::Option(format!(
-            "inner-face trim {} must be in [0, 0.9)",
-            options.trim
-        )));
+        return Err(CompareError::Option {
+            message: format!("inner-face trim {} must be in [0, 0.9)", options.trim),
+        });
     }
     let (unifying, _) = structure::unify(tru).map_err(|e| CompareError::Structure {
         which: "truth",
@@ -867,10 +877,12 @@ pub fn inner_face_score(
     let width = ((hi.x - lo.x) / options.spacing).floor() as usize + 1;
     let height = ((hi.y - lo.y) / options.spacing).floor() as usize + 1;
     if width > crate::render::MAX_SIDE || height > crate::render::MAX_SIDE {
-        return Err(CompareError::Option(format!(
-            "inner-face spacing {} mm makes a {width}×{height} raster",
-            options.spacing
-        )));
+        return Err(CompareError::Option {
+            message: format!(
+                "inner-face spacing {} mm makes a {width}×{height} raster",
+                options.spacing
+            ),
+        });
     }
     let raster = crate::mesh::Raster {
         origin: lo,
@@ -946,7 +958,9 @@ pub fn inner_face_score(
         reconstruction.positions().iter().map(|p| map * p).collect(),
         reconstruction.triangles().to_vec(),
     )
-    .map_err(|e| CompareError::Mesh(e.to_string()))?;
+    .map_err(|e| CompareError::Mesh {
+        message: e.to_string(),
+    })?;
     let covering = crate::render::render_heights(aligned.positions(), aligned.triangles(), &raster);
     let covered = slots.iter().filter(|&&k| covering[k].is_finite()).count();
     Ok(InnerFaceComparison {

@@ -575,9 +575,9 @@ impl Landmarker {
             splineface::detect::detect_faces(&grey)
                 .into_iter()
                 .map(|face| splineface::detect::landmark_face(&self.model, &rgb, face))
-                .collect::<Result<Vec<_>, String>>()
+                .collect::<Result<Vec<_>, _>>()
         });
-        let found = found.map_err(SplinefaceError::new_err)?;
+        let found = found.map_err(|e| SplinefaceError::new_err(e.to_string()))?;
         Ok(found.iter().map(Face::new).collect())
     }
 
@@ -589,7 +589,9 @@ impl Landmarker {
     fn subject(&self, py: Python<'_>, image: &Bound<'_, PyAny>) -> PyResult<Face> {
         let rgb = image::DynamicImage::ImageRgb8(rgb_image(image, "image")?);
         let found = py.detach(|| splineface::detect::landmark_subject(&self.model, &rgb));
-        found.map(|f| Face::new(&f)).map_err(SplinefaceError::new_err)
+        found
+            .map(|f| Face::new(&f))
+            .map_err(|e| SplinefaceError::new_err(e.to_string()))
     }
 
     fn __repr__(&self) -> String {

@@ -231,9 +231,26 @@ pub fn landmark_box(detection: &Detection) -> FaceBox {
 /// ambiguous side.
 pub const AMBIGUOUS_FACE_AREA: f64 = 0.5;
 
-/// Why a photo's detections give no subject face.
+/// Why a photo gives no subject landmarks: its detections give no subject face, or the model
+/// cannot landmark it.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum SubjectProblem {
+    /// The landmark model does not give iBUG's 68 points.
+    #[error("the landmark model gives {points} points, not the 68 of iBUG")]
+    WrongModel {
+        /// The model's points.
+        points: usize,
+    },
+    /// The model gave no usable points from any starting box.
+    #[error("the landmark model gave no usable points")]
+    NoPoints,
+    /// The landmarks cannot be used (not finite).
+    #[error("its landmarks: {error}")]
+    Points {
+        /// Why.
+        error: crate::align::AlignError,
+    },
     /// Nothing was detected.
     #[error("no face found")]
     NoFace,
@@ -337,18 +354,17 @@ fn mirrored_box(b: FaceBox, width: u32) -> FaceBox {
 /// returned as [`LandmarkedFace::disagreement`].
 ///
 /// # Errors
-/// A message when the model does not give 68 points.
+/// [`SubjectProblem::WrongModel`] when the model does not give 68 points.
 pub fn landmark_face(
     model: &crate::landmarker::ShapePredictor,
     image: &image::RgbImage,
     face: Detection,
-) -> Result<LandmarkedFace, String> {
+) -> Result<LandmarkedFace, SubjectProblem> {
     use crate::landmarker::Intensity;
     if model.points() != crate::structure::IBUG_POINT_COUNT {
-        return Err(format!(
-            "the landmark model gives {} points, not the 68 of iBUG",
-            model.points()
-        ));
+        return Err(SubjectProblem::WrongModel {
+            points: model.points(),
+        });
     }
     let width = image.width();
     let photo = Intensity::from_rgb(image);
@@ -422,7 +438,7 @@ pub fn landmark_face(
             best = Some((disagreement, mean));
         }
     }
-    let (disagreement, ibug) = best.ok_or("the landmark model gave no usable points")?;
+    let (disagreement, ibug) = best.ok_or(SubjectProblem::NoPoints)?;
     Ok(LandmarkedFace {
         face,
         ibug,
@@ -435,12 +451,11 @@ pub fn landmark_face(
 /// [`subject_face`], [`landmark_face`]).
 ///
 /// # Errors
-/// A message when no subject face is found ([`SubjectProblem`]) or the model does not give 68
-/// points.
+/// A [`SubjectProblem`] when no subject face is found or the model does not give 68 points.
 pub fn landmark_subject(
     model: &crate::landmarker::ShapePredictor,
     image: &image::DynamicImage,
-) -> Result<LandmarkedFace, String> {
+) -> Result<LandmarkedFace, SubjectProblem> {
     landmark_subject_timed(model, image).map(|(found, _)| found)
 }
 
@@ -451,9 +466,9 @@ pub fn landmark_subject(
 pub fn landmark_subject_timed(
     model: &crate::landmarker::ShapePredictor,
     image: &image::DynamicImage,
-) -> Result<(LandmarkedFace, [f64; 2]), String> {
+) -> Result<(LandmarkedFace, [f64; 2]), SubjectProblem> {
     let start = std::time::Instant::now();
-    let (face, note) = subject_face(&detect_subject_faces(&image.to_luma8())).map_err(|e| e.to_string())?;
+    let (face, note) = subject_face(&detect_subject_faces(&image.to_luma8()))?;
     let detection = start.elapsed().as_secs_f64();
     let start = std::time::Instant::now();
     let found = landmark_face(model, &image.to_rgb8(), face)?;

@@ -200,14 +200,15 @@ pub fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<Real>>)
 /// detection and the landmarks took.
 ///
 /// # Errors
-/// Why no subject was landmarked, in words.
+/// Why no subject was landmarked ([`crate::detect::SubjectProblem`]).
 pub fn landmark_photo(
     model: &ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
-) -> Result<(PhotoPoints, LandmarkedFace, [f64; 2]), String> {
+) -> Result<(PhotoPoints, LandmarkedFace, [f64; 2]), crate::detect::SubjectProblem> {
     let (found, seconds) = crate::detect::landmark_subject_timed(model, image)?;
-    let points = PhotoPoints::from_ibug68(name, &found.ibug).map_err(|e| e.to_string())?;
+    let points = PhotoPoints::from_ibug68(name, &found.ibug)
+        .map_err(|error| crate::detect::SubjectProblem::Points { error })?;
     Ok((points, found, seconds))
 }
 
@@ -474,7 +475,7 @@ fn prepare_photo(
                 }
                 (points, PhotoRecord::from_detection(stem, &found))
             }
-            Err(reason) => return skip(reason, seconds),
+            Err(reason) => return skip(reason.to_string(), seconds),
         },
         (None, None) => {
             return skip(
@@ -786,7 +787,7 @@ pub fn landmark_photos(
                 }
                 Err(reason) => Ok((
                     format!("{}: skipped: {reason}", path.display()),
-                    Some(PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason)),
+                    Some(PhotoRecord::skipped(stem, Some(decoded.to_rgb8()), reason.to_string())),
                     None,
                 )),
             }

@@ -160,7 +160,7 @@ fn bad_comparisons_are_errors() {
         };
         assert!(matches!(
             compare(&mesh, &mesh, None, &options),
-            Err(CompareError::Option(_))
+            Err(CompareError::Option { .. })
         ));
     }
 }
