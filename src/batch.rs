@@ -433,7 +433,7 @@ pub const SUMMARY_COLUMNS: [&str; 12] = [
 
 /// `summary.csv` (the columns of [`SUMMARY_COLUMNS`]) and `summary.jsonl` (each row whole,
 /// stage times included) of `rows`, as `(name, bytes)`.
-pub fn summary_files(rows: &[SubjectRow]) -> Vec<(PathBuf, Vec<u8>)> {
+pub(crate) fn summary_files(rows: &[SubjectRow]) -> Vec<(PathBuf, Vec<u8>)> {
     let option = |v: Option<String>| v.unwrap_or_default();
     let mut csv = SUMMARY_COLUMNS.join(",") + "\n";
     let mut jsonl = String::new();
@@ -464,7 +464,7 @@ pub fn summary_files(rows: &[SubjectRow]) -> Vec<(PathBuf, Vec<u8>)> {
     ]
 }
 
-/// Writes [`summary_files`] into `out`, all or nothing.
+/// Writes `summary.csv` and `summary.jsonl` into `out`, all or nothing.
 ///
 /// # Errors
 /// [`BatchError::Output`] naming the file that could not be written.

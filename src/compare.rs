@@ -758,7 +758,7 @@ pub fn compare(
 /// The truth's inner face as a polygon in its frontal plane (`x, y` of `structure`, which is
 /// already in the view frame): the 9 contour points from the right ear under the chin to the
 /// left ear, then the 6 brow points back from the left outer end to the right one.
-pub fn inner_face_outline(structure: &[Point3<Real>]) -> Vec<Point2<Real>> {
+pub(crate) fn inner_face_outline(structure: &[Point3<Real>]) -> Vec<Point2<Real>> {
     let contour = (0..POINT_COUNT).filter(|&k| structure::POINTS[k].group == structure::Group::Contour);
     let brows = (0..POINT_COUNT)
         .filter(|&k| structure::POINTS[k].group == structure::Group::Brows)
@@ -822,7 +822,7 @@ pub struct InnerFaceComparison {
 ///
 /// 1. The view is the truth's frontal frame ([`structure::unify`] without its scaling); the
 ///    inner face is the region inside the truth's contour and brows
-///    ([`inner_face_outline`]), and its samples are the truth's front-most surface over it, every
+///    (the contour and the brows of its structure), and its samples are the truth's front-most surface over it, every
 ///    `spacing` mm (the surface seen from the front).
 /// 2. The reconstruction is aligned by a similarity: first between the two structures over
 ///    their 31 points off the contour (a scan's contour landmarks may lie on the outline near

@@ -385,7 +385,7 @@ pub fn check_output_file(path: &Path) -> Result<(), OutputError> {
 ///
 /// # Errors
 /// Why not.
-pub fn probe_writable(directory: &Path) -> std::io::Result<()> {
+pub(crate) fn probe_writable(directory: &Path) -> std::io::Result<()> {
     // Named like a temporary of `splineface-probe`, so that a probe a killed run left is
     // cleared by the next one as its temporaries are.
     let stem = directory.join("splineface-probe");

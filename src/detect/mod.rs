@@ -463,7 +463,7 @@ pub fn landmark_subject(
 ///
 /// # Errors
 /// As [`landmark_subject`].
-pub fn landmark_subject_timed(
+pub(crate) fn landmark_subject_timed(
     model: &crate::landmarker::ShapePredictor,
     image: &image::DynamicImage,
 ) -> Result<(LandmarkedFace, [f64; 2]), SubjectProblem> {

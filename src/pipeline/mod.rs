@@ -34,9 +34,9 @@ mod settings;
 
 pub use photos::{
     IMAGE_EXTENSIONS, InputError, LANDMARK_EXTENSIONS, LandmarkedPhotos, PhotoRecord, PhotoSet, PhotoTiming,
-    files_in, gather_inputs, has_extension, landmark_file, landmark_photo, landmark_photos, photo_files,
-    photo_index, photo_list, photo_stem, read_photo_points,
+    gather_inputs, landmark_photos, photo_index, photo_list,
 };
+pub(crate) use photos::{files_in, photo_files};
 pub use settings::Settings;
 
 use std::time::Instant;

@@ -102,7 +102,7 @@ pub enum InputError {
 ///
 /// # Errors
 /// [`InputError::Directory`] if `dir` cannot be listed.
-pub fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>, InputError> {
+pub(crate) fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>, InputError> {
     let entries = std::fs::read_dir(dir).map_err(|error| InputError::Directory {
         path: dir.to_path_buf(),
         error,
@@ -116,7 +116,7 @@ pub fn files_in(dir: &Path, extensions: &[&str]) -> Result<Vec<PathBuf>, InputEr
 }
 
 /// Whether `path`'s extension is one of `extensions` (case-insensitive).
-pub fn has_extension(path: &Path, extensions: &[&str]) -> bool {
+pub(crate) fn has_extension(path: &Path, extensions: &[&str]) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))
@@ -141,14 +141,14 @@ pub fn photo_list(photos: &[PathBuf], folder: Option<&Path>) -> Result<Vec<PathB
 }
 
 /// A photo's name in every output: its file stem.
-pub fn photo_stem(path: &Path) -> String {
+pub(crate) fn photo_stem(path: &Path) -> String {
     path.file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_default()
 }
 
 /// The landmark file for a photo stem in `dir`: `STEM.pts` or `STEM.json`.
-pub fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
+pub(crate) fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
     LANDMARK_EXTENSIONS
         .iter()
         .map(|e| dir.join(format!("{stem}.{e}")))
@@ -161,7 +161,7 @@ pub fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
 ///
 /// # Errors
 /// [`InputError::LandmarkFile`] naming the file and the problem.
-pub fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<Real>>), InputError> {
+pub(crate) fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<Real>>), InputError> {
     let problem = |message: String| InputError::LandmarkFile {
         path: path.to_path_buf(),
         message,
@@ -201,7 +201,7 @@ pub fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<Real>>)
 ///
 /// # Errors
 /// Why no subject was landmarked ([`crate::detect::SubjectProblem`]).
-pub fn landmark_photo(
+pub(crate) fn landmark_photo(
     model: &ShapePredictor,
     image: &image::DynamicImage,
     name: &str,
@@ -526,7 +526,7 @@ impl PhotoSet {
 
     /// Every file of a reconstruction of these photos: `result`'s own
     /// ([`Reconstruction::files`]), each photo's overlay and detected landmarks
-    /// ([`photo_files`]), `report.json` with the skipped photos, detection notes and the photo
+    /// (drawn by the pipeline), `report.json` with the skipped photos, detection notes and the photo
     /// stages' times added (`model_seconds`: the landmark model's load, when it was loaded),
     /// and `report.html`. Warnings about outputs that could not be drawn join the report.
     ///
@@ -615,7 +615,7 @@ impl PhotoSet {
 /// `NAME.pts` in `landmark_folder` for every detected one; the overlays of a reconstruction's
 /// photos carry its fitted points and each photo's fate. A photo whose overlay cannot be
 /// encoded gets a warning instead.
-pub fn photo_files(
+pub(crate) fn photo_files(
     records: &[PhotoRecord],
     landmark_folder: &Path,
     inputs: &[Input],

@@ -16,14 +16,14 @@ mod write;
 use nalgebra::{Point2, Point3, Rotation3, Vector3};
 
 use crate::Real;
-pub use crate::mesh::Raster;
+use crate::mesh::Raster;
 use crate::mesh::TriangleMesh;
 pub use photo::{SyntheticPhoto, synthetic_photo};
-pub use photoreal::{
-    Camera, ColourMap, Lighting, PhotoLook, linear_to_srgb, linear_to_srgb8, render_photo, srgb_to_linear,
-};
+pub(crate) use photoreal::linear_to_srgb8;
+pub use photoreal::{Camera, ColourMap, Lighting, PhotoLook, linear_to_srgb, render_photo, srgb_to_linear};
 pub use raster::render_heights;
-pub use text::{TextStyle, draw_text, line_height, text_width, wrap_text};
+pub use text::{TextStyle, draw_text, text_width};
+pub(crate) use text::{line_height, wrap_text};
 pub use write::{encode_depth_exr, encode_depth_png, heatmap_png, shaded_png};
 
 /// A viewing direction: the rotation applied to the mesh before looking along `−z`.

@@ -198,7 +198,7 @@ pub fn srgb_to_linear(c: f32) -> f32 {
 /// Linear light as an 8-bit sRGB value, `round(255 · linear_to_srgb(c))`, without a power:
 /// a binary search of the 255 linear values at which the rounded value steps up (NaN gives
 /// 0). Textures and renders encode millions of values; this is what they call.
-pub fn linear_to_srgb8(c: Real) -> u8 {
+pub(crate) fn linear_to_srgb8(c: Real) -> u8 {
     static STEPS: std::sync::OnceLock<[Real; 255]> = std::sync::OnceLock::new();
     let steps = STEPS.get_or_init(|| {
         std::array::from_fn(|v| {

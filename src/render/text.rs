@@ -64,7 +64,7 @@ pub fn text_width(text: &str, size: f32) -> f32 {
 }
 
 /// The height in pixels of one line at `size` (ascent − descent + line gap).
-pub fn line_height(size: f32) -> f32 {
+pub(crate) fn line_height(size: f32) -> f32 {
     FONT.as_ref().map_or(size, |font| {
         let scaled = font.as_scaled(PxScale::from(size));
         scaled.ascent() - scaled.descent() + scaled.line_gap()
@@ -104,7 +104,7 @@ pub fn draw_text(image: &mut image::RgbImage, text: &str, x: f32, y: f32, style:
 
 /// Breaks `text` into lines no wider than `width` pixels at `size`, at spaces (a word wider
 /// than the line gets a line of its own).
-pub fn wrap_text(text: &str, size: f32, width: f32) -> Vec<String> {
+pub(crate) fn wrap_text(text: &str, size: f32, width: f32) -> Vec<String> {
     let mut lines = Vec::new();
     for paragraph in text.split('\n') {
         let mut line = String::new();

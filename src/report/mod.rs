@@ -6,7 +6,5 @@
 mod overlay;
 mod page;
 
-pub use overlay::{
-    FittedPoints, MAX_SIDE, MIN_SIDE, Overlay, PhotoStatus, draw_overlay, draw_segment, overlay_scale,
-};
+pub use overlay::{FittedPoints, MAX_SIDE, MIN_SIDE, Overlay, PhotoStatus, draw_overlay, overlay_scale};
 pub use page::{PageOptions, report_page};

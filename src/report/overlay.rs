@@ -235,7 +235,13 @@ pub fn draw_overlay(overlay: &Overlay<'_>) -> RgbImage {
 /// Blends a segment from `a` to `b` of `width` pixels with round ends (a dot when `a = b`)
 /// over the image, each pixel by its coverage (1 inside, fading over one pixel at the edge).
 /// Non-finite ends draw nothing.
-pub fn draw_segment(image: &mut RgbImage, a: Point2<Real>, b: Point2<Real>, width: Real, colour: [u8; 3]) {
+pub(crate) fn draw_segment(
+    image: &mut RgbImage,
+    a: Point2<Real>,
+    b: Point2<Real>,
+    width: Real,
+    colour: [u8; 3],
+) {
     if !(a.coords.iter().chain(b.coords.iter()).all(|c| c.is_finite()) && width.is_finite()) {
         return;
     }
