@@ -400,6 +400,115 @@ pub struct Comparison {
     pub aligned: TriangleMesh,
 }
 
+/// Where a comparison puts the reconstruction: the map onto the truth, how it was found, the
+/// view frame (the truth's frontal frame with its millimetres kept, or the identity), and the
+/// eye distance the paper's measure divides by.
+struct Placement {
+    map: Similarity3<Real>,
+    alignment: Alignment,
+    view: Similarity3<Real>,
+    eye_distance: Real,
+}
+
+/// [`compare`]'s alignment: by the structures' similarity when they are given, else by rigid
+/// ICP onto the truth's surface (`indexed`).
+fn placement(
+    reconstruction: &TriangleMesh,
+    truth: &TriangleMesh,
+    indexed: &ClosestPoints,
+    structures: Option<Structures<'_>>,
+    options: &CompareOptions,
+) -> Result<Placement, CompareError> {
+    Ok(match structures {
+        Some((rec, tru)) => {
+            check_structure(rec, "reconstruction")?;
+            check_structure(tru, "truth")?;
+            let (map, rms) = fit_similarity(rec, tru).ok_or(CompareError::Structure {
+                which: "reconstruction",
+                problem: "its points are degenerate (collinear)".into(),
+            })?;
+            let (unifying, _) = structure::unify(tru).map_err(|e| CompareError::Structure {
+                which: "truth",
+                problem: e.to_string(),
+            })?;
+            // Keep the truth's millimetres: only turn and move it.
+            Placement {
+                map,
+                alignment: Alignment {
+                    method: "structures (similarity)".into(),
+                    scale: map.scaling(),
+                    rms,
+                    iterations: 0,
+                },
+                view: Similarity3::from_isometry(unifying.isometry, 1.0),
+                eye_distance: (tru[LEFT_EYE_CENTRE] - tru[RIGHT_EYE_CENTRE]).norm(),
+            }
+        }
+        None => {
+            let (map, rms, iterations) =
+                icp(reconstruction.positions(), indexed, truth, options.icp_iterations);
+            Placement {
+                map,
+                alignment: Alignment {
+                    method: "icp (rigid)".into(),
+                    scale: 1.0,
+                    rms,
+                    iterations,
+                },
+                view: Similarity3::identity(),
+                eye_distance: crate::face::DEFAULT_EYE_DISTANCE_MM,
+            }
+        }
+    })
+}
+
+/// The raster both depth maps are rendered over: the aligned reconstruction framed from the
+/// front with a 2% margin, `size` pixels along its longer side.
+fn comparison_raster(aligned: &TriangleMesh, size: usize) -> Result<crate::mesh::Raster, CompareError> {
+    let (lo, hi) = crate::geometry::bounding_box(aligned.positions()).expect("a mesh has vertices");
+    let (w, h) = if hi.x - lo.x >= hi.y - lo.y {
+        (
+            size,
+            (((hi.y - lo.y) / (hi.x - lo.x).max(1e-300)) * size as Real).ceil() as usize,
+        )
+    } else {
+        (
+            (((hi.x - lo.x) / (hi.y - lo.y)) * size as Real).ceil() as usize,
+            size,
+        )
+    };
+    frame_raster(
+        aligned.positions().iter().copied(),
+        &View::front(),
+        w.max(1),
+        h.max(1),
+        0.02,
+    )
+    .map_err(|e| CompareError::Option {
+        message: e.to_string(),
+    })
+}
+
+/// The paper's structure measures of two aligned structures (view frame): the
+/// multi-substructure SSIM of their edge lengths (`reconstruction` against `truth`) and the
+/// correlation of their depths.
+fn structure_measures(
+    reconstruction: &[Point3<Real>],
+    truth: &[Point3<Real>],
+) -> (Option<Real>, Option<Real>) {
+    let reference = ReferenceFace::embedded();
+    let edges = reference.edges();
+    let groups = structure::substructures(edges);
+    let ssim = structure::multi_substructure_similarity(
+        &structure::edge_lengths(truth, edges),
+        &structure::edge_lengths(reconstruction, edges),
+        &groups,
+    );
+    let za: Vec<Real> = reconstruction.iter().map(|p| p.z).collect();
+    let zb: Vec<Real> = truth.iter().map(|p| p.z).collect();
+    (Some(ssim), structure::correlation(&za, &zb))
+}
+
 /// The least-squares similarity `s·R·x + t` taking `from` onto `to` (Umeyama 1991), with its
 /// RMS residual; `None` if `from` is degenerate (collinear or a point).
 pub fn fit_similarity(from: &[Point3<Real>], to: &[Point3<Real>]) -> Option<(Similarity3<Real>, Real)> {
@@ -579,51 +688,12 @@ pub fn compare(
         });
     }
     let indexed = ClosestPoints::new(truth);
-    // Into the truth's frame, then into the view frame.
-    let (alignment_map, alignment, view_map, eye_distance) = match structures {
-        Some((rec, tru)) => {
-            check_structure(rec, "reconstruction")?;
-            check_structure(tru, "truth")?;
-            let (map, rms) = fit_similarity(rec, tru).ok_or(CompareError::Structure {
-                which: "reconstruction",
-                problem: "its points are degenerate (collinear)".into(),
-            })?;
-            let (unifying, _) = structure::unify(tru).map_err(|e| CompareError::Structure {
-                which: "truth",
-                problem: e.to_string(),
-            })?;
-            // Keep the truth's millimetres: only turn and move it.
-            let view = Similarity3::from_isometry(unifying.isometry, 1.0);
-            let eyes = (tru[LEFT_EYE_CENTRE] - tru[RIGHT_EYE_CENTRE]).norm();
-            let alignment = Alignment {
-                method: "structures (similarity)".into(),
-                scale: map.scaling(),
-                rms,
-                iterations: 0,
-            };
-            (map, alignment, view, eyes)
-        }
-        None => {
-            let (map, rms, iterations) = icp(
-                reconstruction.positions(),
-                &indexed,
-                truth,
-                options.icp_iterations,
-            );
-            let alignment = Alignment {
-                method: "icp (rigid)".into(),
-                scale: 1.0,
-                rms,
-                iterations,
-            };
-            (
-                map,
-                alignment,
-                Similarity3::identity(),
-                crate::face::DEFAULT_EYE_DISTANCE_MM,
-            )
-        }
-    };
+    let Placement {
+        map: alignment_map,
+        alignment,
+        view: view_map,
+        eye_distance,
+    } = placement(reconstruction, truth, &indexed, structures, options)?;
     let to_view = |p: &Point3<Real>| view_map * p;
     let aligned_points: Vec<Point3<Real>> = reconstruction
         .positions()
@@ -642,28 +712,7 @@ pub fn compare(
     ));
 
     let front = View::front();
-    let (lo, hi) = crate::geometry::bounding_box(aligned.positions()).expect("a mesh has vertices");
-    let (w, h) = if hi.x - lo.x >= hi.y - lo.y {
-        (
-            options.size,
-            (((hi.y - lo.y) / (hi.x - lo.x).max(1e-300)) * options.size as Real).ceil() as usize,
-        )
-    } else {
-        (
-            (((hi.x - lo.x) / (hi.y - lo.y)) * options.size as Real).ceil() as usize,
-            options.size,
-        )
-    };
-    let raster = frame_raster(
-        aligned.positions().iter().copied(),
-        &front,
-        w.max(1),
-        h.max(1),
-        0.02,
-    )
-    .map_err(|e| CompareError::Option {
-        message: e.to_string(),
-    })?;
+    let raster = comparison_raster(&aligned, options.size)?;
     let rec_map = DepthMap::render(&aligned, &front, &raster);
     let truth_map = DepthMap::render(&truth_view, &front, &raster);
 
@@ -702,19 +751,9 @@ pub fn compare(
 
     let (structure_ssim, depth_correlation) = match structures {
         Some((rec, tru)) => {
-            let reference = ReferenceFace::embedded();
-            let edges = reference.edges();
-            let groups = structure::substructures(edges);
             let a: Vec<Point3<Real>> = rec.iter().map(|p| to_view(&(alignment_map * p))).collect();
             let b: Vec<Point3<Real>> = tru.iter().map(&to_view).collect();
-            let ssim = structure::multi_substructure_similarity(
-                &structure::edge_lengths(&b, edges),
-                &structure::edge_lengths(&a, edges),
-                &groups,
-            );
-            let za: Vec<Real> = a.iter().map(|p| p.z).collect();
-            let zb: Vec<Real> = b.iter().map(|p| p.z).collect();
-            (Some(ssim), structure::correlation(&za, &zb))
+            structure_measures(&a, &b)
         }
         None => (None, None),
     };
