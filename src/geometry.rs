@@ -1,6 +1,6 @@
 //! Small geometric helpers that several stages share: bounding boxes and planar polygons.
 
-use nalgebra::{Point, Point2};
+use nalgebra::{Matrix2x3, Matrix3, Point, Point2};
 
 use crate::Real;
 
@@ -50,4 +50,30 @@ pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
 /// edge counts when exactly one end lies above `y`); `None` when it does not cross.
 pub(crate) fn edge_crossing(a: Point2<Real>, b: Point2<Real>, y: Real) -> Option<Real> {
     ((a.y > y) != (b.y > y)).then(|| a.x + (y - a.y) / (b.y - a.y) * (b.x - a.x))
+}
+
+/// The 3 × 3 homogeneous matrix of a 2D affine map `[A | t]` (a RASL warp), so that maps
+/// compose by multiplication and invert with [`Matrix3::try_inverse`].
+///
+/// # Examples
+/// ```
+/// use nalgebra::{Matrix2x3, Point2};
+/// use splineface::geometry::homogeneous;
+///
+/// let shift = Matrix2x3::new(1.0, 0.0, 5.0, 0.0, 1.0, -2.0);
+/// let twice = homogeneous(&shift) * homogeneous(&shift);
+/// assert_eq!(twice.transform_point(&Point2::new(0.0, 0.0)), Point2::new(10.0, -4.0));
+/// ```
+pub fn homogeneous(m: &Matrix2x3<Real>) -> Matrix3<Real> {
+    Matrix3::new(
+        m[(0, 0)],
+        m[(0, 1)],
+        m[(0, 2)],
+        m[(1, 0)],
+        m[(1, 1)],
+        m[(1, 2)],
+        0.0,
+        0.0,
+        1.0,
+    )
 }

@@ -15,28 +15,15 @@
 mod common;
 
 use common::Lcg;
-use nalgebra::{Matrix2x3, Matrix3, Point2};
+use nalgebra::{Matrix2x3, Point2};
 use splineface::Real;
 use splineface::align::{
     GreyImage, PhotoPoints, RaslOptions, RaslPhoto, apply_affine, procrustes_frontal, rasl_frontal,
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
+use splineface::geometry::homogeneous;
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
-
-fn to3(m: &Matrix2x3<Real>) -> Matrix3<Real> {
-    Matrix3::new(
-        m[(0, 0)],
-        m[(0, 1)],
-        m[(0, 2)],
-        m[(1, 0)],
-        m[(1, 1)],
-        m[(1, 2)],
-        0.0,
-        0.0,
-        1.0,
-    )
-}
 
 fn main() -> anyhow::Result<()> {
     let r = ReferenceFace::embedded();
@@ -80,7 +67,7 @@ fn main() -> anyhow::Result<()> {
                 data.push(v);
             }
         }
-        let inverse = to3(&m)
+        let inverse = homogeneous(&m)
             .try_inverse()
             .expect("invertible")
             .fixed_view::<2, 3>(0, 0)
@@ -145,7 +132,7 @@ fn main() -> anyhow::Result<()> {
             for k in 9..40 {
                 let seen: Vec<Point2<Real>> = (0..copies.len())
                     .map(|i| {
-                        let composed = to3(&maps[i]) * to3(&warps[2 * i]);
+                        let composed = homogeneous(&maps[i]) * homogeneous(&warps[2 * i]);
                         let inverse = composed
                             .try_inverse()
                             .expect("invertible")

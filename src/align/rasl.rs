@@ -193,20 +193,6 @@ fn similarity(from: &[Point2<Real>], to: &[Point2<Real>]) -> Matrix2x3<Real> {
     Matrix2x3::new(c, -s, t.x, s, c, t.y)
 }
 
-fn to_matrix3(m: &Matrix2x3<Real>) -> Matrix3<Real> {
-    Matrix3::new(
-        m[(0, 0)],
-        m[(0, 1)],
-        m[(0, 2)],
-        m[(1, 0)],
-        m[(1, 1)],
-        m[(1, 2)],
-        0.0,
-        0.0,
-        1.0,
-    )
-}
-
 fn from_matrix3(m: &Matrix3<Real>) -> Matrix2x3<Real> {
     m.fixed_view::<2, 3>(0, 0).into_owned()
 }
@@ -623,7 +609,7 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
                 1.0,
             );
             for warp in warps.iter_mut() {
-                *warp = from_matrix3(&(to_matrix3(warp) * g));
+                *warp = from_matrix3(&(crate::geometry::homogeneous(warp) * g));
             }
         }
         objective.push(value);
@@ -638,7 +624,11 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
     // The frontal structure: the mean of τᵢ⁻¹(Sᵢ), in window pixels (y down), then unified.
     let inverses: Vec<Matrix3<Real>> = warps
         .iter()
-        .map(|w| to_matrix3(w).try_inverse().unwrap_or_else(Matrix3::identity))
+        .map(|w| {
+            crate::geometry::homogeneous(w)
+                .try_inverse()
+                .unwrap_or_else(Matrix3::identity)
+        })
         .collect();
     let in_window: Vec<Vec<Point2<Real>>> = columns
         .iter()

@@ -1,12 +1,13 @@
 //! RASL: a batch made from one face image warped by known affine maps, some copies occluded.
 
-use nalgebra::{DMatrix, Matrix2x3, Matrix3, Point2};
+use nalgebra::{DMatrix, Matrix2x3, Point2};
 use splineface::Real;
 use splineface::align::{
     AlignError, FrontalMethod, GreyImage, PhotoPoints, PhotoProblem, RaslOptions, RaslPhoto, apply_affine,
     rasl_frontal, singular_value_threshold,
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
+use splineface::geometry::homogeneous;
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
 
@@ -19,20 +20,6 @@ pub fn face_photo(width: usize, height: usize) -> (GreyImage, Vec<Point2<Real>>)
     let mesh = face.mesh(&MeshOptions { spacing: 1.0 }).unwrap().mesh;
     let photo = synthetic_photo(&mesh, r.structure(), &View::front(), width, height, 0.12).unwrap();
     (photo.image, photo.points)
-}
-
-fn to3(m: &Matrix2x3<Real>) -> Matrix3<Real> {
-    Matrix3::new(
-        m[(0, 0)],
-        m[(0, 1)],
-        m[(0, 2)],
-        m[(1, 0)],
-        m[(1, 1)],
-        m[(1, 2)],
-        0.0,
-        0.0,
-        1.0,
-    )
 }
 
 /// The copy `C(q) = B(M q)` of `base`, with `M` the given affine map of pixels.
@@ -84,7 +71,7 @@ fn batch(copies: usize, noise: Real, seed: u64) -> Batch {
             t.y,
         );
         let mut image = warped_copy(&base, &m);
-        let inverse = to3(&m).try_inverse().unwrap();
+        let inverse = homogeneous(&m).try_inverse().unwrap();
         let inverse = inverse.fixed_view::<2, 3>(0, 0).into_owned();
         let points: Vec<Point2<Real>> = base_points
             .iter()
@@ -134,7 +121,7 @@ fn rasl_undoes_known_warps_and_puts_occlusions_in_the_sparse_part() {
         for k in 9..40 {
             let seen: Vec<Point2<Real>> = (0..b.photos.len())
                 .map(|i| {
-                    let composed = to3(&b.maps[i]) * to3(&warps[2 * i]);
+                    let composed = homogeneous(&b.maps[i]) * homogeneous(&warps[2 * i]);
                     let inverse = composed
                         .try_inverse()
                         .unwrap()
