@@ -464,6 +464,40 @@ pub(crate) fn summary_files(rows: &[SubjectRow]) -> Vec<(PathBuf, Vec<u8>)> {
     ]
 }
 
+/// Runs every subject ([`run_subject`]) in parallel (each subject's stages are parallel too;
+/// rayon shares the cores), calling `done` with each finished row and how many have finished,
+/// from whichever thread finished it. Returns the rows in the subjects' order.
+pub fn run_subjects(
+    subjects: &[Subject],
+    out: &Path,
+    job: &BatchJob<'_>,
+    done: impl Fn(&SubjectRow, usize) + Sync,
+) -> Vec<SubjectRow> {
+    use rayon::prelude::*;
+    let finished = std::sync::atomic::AtomicUsize::new(0);
+    subjects
+        .par_iter()
+        .map(|subject| {
+            let row = run_subject(subject, out, job);
+            done(
+                &row,
+                finished.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1,
+            );
+            row
+        })
+        .collect()
+}
+
+/// How many rows have each status: done, unchanged, failed.
+pub fn status_counts(rows: &[SubjectRow]) -> [usize; 3] {
+    let count = |s: Status| rows.iter().filter(|r| r.status == s).count();
+    [
+        count(Status::Done),
+        count(Status::Unchanged),
+        count(Status::Failed),
+    ]
+}
+
 /// Writes `summary.csv` and `summary.jsonl` into `out`, all or nothing.
 ///
 /// # Errors

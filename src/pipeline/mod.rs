@@ -55,7 +55,7 @@ use crate::face::{
 };
 use crate::mesh::TriangleMesh;
 use crate::reference::ReferenceFace;
-use crate::render::{DepthMap, View, frame_raster};
+use crate::render::{DepthMap, View};
 
 /// A photo's image: grey for alignment, colour for the texture.
 #[derive(Debug, Clone)]
@@ -980,8 +980,6 @@ impl Reconstruction {
         } else {
             (size, ((size as Real) * aspect).round().max(1.0) as usize)
         };
-        let raster = frame_raster(mesh.positions().iter().copied(), &view, w, h, 0.02)
-            .map_err(encode_error("depth.exr"))?;
-        Ok(DepthMap::render(mesh, &view, &raster))
+        DepthMap::framed(mesh, &view, w, h).map_err(encode_error("depth.exr"))
     }
 }

@@ -173,7 +173,53 @@ pub struct DepthMap {
     pub heights: Vec<Real>,
 }
 
+/// A depth map's file format ([`encode_depth_exr`], [`encode_depth_png`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthFormat {
+    /// OpenEXR, float32 depth with a coverage channel.
+    Exr,
+    /// 16-bit greyscale PNG.
+    Png,
+}
+
+impl DepthFormat {
+    /// The format a path's extension names (`.exr` or `.png`, any case).
+    pub fn from_path(path: &std::path::Path) -> Option<Self> {
+        match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
+            "exr" => Some(DepthFormat::Exr),
+            "png" => Some(DepthFormat::Png),
+            _ => None,
+        }
+    }
+
+    /// The map's file in this format.
+    ///
+    /// # Errors
+    /// As the encoder ([`encode_depth_exr`], [`encode_depth_png`]).
+    pub fn encode(self, map: &DepthMap) -> Result<Vec<u8>, crate::io::EncodeError> {
+        match self {
+            DepthFormat::Exr => encode_depth_exr(map),
+            DepthFormat::Png => encode_depth_png(map),
+        }
+    }
+}
+
 impl DepthMap {
+    /// Renders `mesh` seen from `view` over the `width × height` raster that frames it with a
+    /// 2% margin ([`frame_raster`]).
+    ///
+    /// # Errors
+    /// As [`frame_raster`]: a size out of range, or a mesh with no finite vertex.
+    pub fn framed(
+        mesh: &TriangleMesh,
+        view: &View,
+        width: usize,
+        height: usize,
+    ) -> Result<Self, RenderError> {
+        let raster = frame_raster(mesh.positions().iter().copied(), view, width, height, 0.02)?;
+        Ok(DepthMap::render(mesh, view, &raster))
+    }
+
     /// Renders `mesh` seen from `view` over `raster`.
     ///
     /// # Examples

@@ -3,334 +3,22 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+mod args;
+
 use anyhow::{Context, Result, bail};
-use clap::{Parser, Subcommand};
+use args::{
+    BatchArgs, Cli, Command, CompareArgs, DemoArgs, FitReferenceArgs, LandmarksArgs, ReconstructArgs,
+    RenderDepthArgs,
+};
+use clap::Parser;
 use splineface::bspline::BSplineSurface;
 use splineface::compare::{CompareOptions, FileComparison, LengthUnit, MeshFiles, compare_files};
 use splineface::face::Units;
 use splineface::face::modes::ModeFiles;
 use splineface::mesh::read_mesh;
-use splineface::pipeline::{Input, InputError, PipelineOptions, gather_inputs, photo_list, reconstruct};
+use splineface::pipeline::{InputError, gather_inputs, photo_list, reconstruct};
 use splineface::reference::{ReferenceFace, ReferenceOptions, ReferenceScan, build_reference};
-use splineface::render::{
-    DepthMap, MAX_SIDE, View, encode_depth_exr, encode_depth_png, frame_raster, shaded_png,
-};
-
-/// Smooth 3D faces from uncalibrated photos: B-spline surfaces, meshes and depth maps.
-#[derive(Parser)]
-#[command(version, about)]
-struct Cli {
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Subcommand)]
-enum Command {
-    /// Validate a B-spline surface file (JSON) and print its shape, domain and extent.
-    Inspect {
-        /// The surface file, as written by `BSplineSurface::to_json`.
-        surface: PathBuf,
-    },
-    /// Fit a reference face (control grid, 40-point structure, clip region) to face scans.
-    ///
-    /// Give one `--landmarks` per `--mesh`, in the same order; several pairs give one reference
-    /// from their mean.
-    #[command(allow_negative_numbers = true)]
-    FitReference {
-        /// A scan: OBJ, PLY, glTF or GLB.
-        #[arg(long = "mesh", required = true)]
-        meshes: Vec<PathBuf>,
-        /// Its landmarks: 68 vertex indices (a text file, one a line, `#` comments) or a JSON
-        /// landmark file with 3D points (68 iBUG or the 40 of the structure).
-        #[arg(long = "landmarks", required = true)]
-        landmarks: Vec<PathBuf>,
-        /// The reference file to write (JSON).
-        #[arg(long)]
-        out: PathBuf,
-        /// Control points along each side of the cubic grid.
-        #[arg(long, default_value_t = ReferenceOptions::default().grid)]
-        grid: usize,
-        /// Thin-plate smoothness weight λ.
-        #[arg(long, default_value_t = ReferenceOptions::default().smoothness)]
-        smoothness: f64,
-        /// Distance between frontal samples, canonical units (50 between the eye centres).
-        #[arg(long, default_value_t = ReferenceOptions::default().sample_spacing)]
-        sample_spacing: f64,
-        /// Free text stored in the file's provenance (licence, origin).
-        #[arg(long, default_value = "")]
-        note: String,
-        /// Identity modes of the face space: per-vertex displacement fields of the (single)
-        /// scan, as little-endian float32 `[mode][vertex][x, y, z]` in the scan's own frame and
-        /// units (the size must be a multiple of the scan's vertices × 12 bytes), each the
-        /// displacement of one prior standard deviation (a plausible face is
-        /// `scan + Σ wₖ·modeₖ` with `wₖ ~ N(0, 1)`). Needs the landmarks as vertex indices.
-        #[arg(long, value_name = "FILE")]
-        identity_modes: Option<PathBuf>,
-        /// Expression modes (blendshapes) of the face space, laid out like `--identity-modes`,
-        /// each the displacement of the full expression (weights in `[0, 1]`).
-        #[arg(
-            long,
-            value_name = "FILE",
-            requires = "expression_names",
-            requires = "identity_modes"
-        )]
-        expression_modes: Option<PathBuf>,
-        /// The expression modes' names, one a line (blank lines and `#` comments skipped).
-        #[arg(long, value_name = "FILE", requires = "expression_modes")]
-        expression_names: Option<PathBuf>,
-        /// Where the modes came from (licence, origin), stored with them.
-        #[arg(long, default_value = "")]
-        modes_note: String,
-        /// Learn a face space from the scans themselves (three or more): the principal
-        /// components of their own fitted grids, each scan a sample of the faces it stands for.
-        #[arg(long, conflicts_with = "identity_modes")]
-        space_from_scans: bool,
-    },
-    /// Reconstruct a face from photos and/or their landmark files.
-    ///
-    /// Landmark files (`.pts` with 68 iBUG or 40 structure points, or landmark JSON) are
-    /// matched to photos by file stem in `--landmarks`; with landmarks and no photos the run is
-    /// points-only (no RASL, no texture).
-    #[command(allow_negative_numbers = true)]
-    Reconstruct {
-        /// Photos (JPEG, PNG, BMP, TIFF, WebP).
-        photos: Vec<PathBuf>,
-        /// A directory of photos (every image file in it, by name).
-        #[arg(long = "photos")]
-        photo_dir: Option<PathBuf>,
-        /// A directory of landmark files, one per photo, named like the photo.
-        #[arg(long)]
-        landmarks: Option<PathBuf>,
-        /// The directory to write into (created if missing).
-        #[arg(long)]
-        out: PathBuf,
-        #[command(flatten)]
-        face: FaceArgs,
-        #[command(flatten)]
-        output: OutputArgs,
-    },
-    /// Reconstruct many subjects: one sub-folder of ROOT per subject (its photos and/or
-    /// landmark files), each written to OUT/NAME as `reconstruct` writes it, subjects in
-    /// parallel with the model loaded once. Resumable: a subject whose inputs and options are
-    /// unchanged since its outputs were written is skipped. Writes OUT/summary.csv and
-    /// OUT/summary.jsonl (one row per subject); a failed subject is a row, never the end of
-    /// the batch (the exit status is 1 if any failed).
-    Batch {
-        /// The folder of subject folders.
-        root: PathBuf,
-        /// The directory to write into (created if missing; not inside ROOT).
-        #[arg(long)]
-        out: PathBuf,
-        /// Reconstruct every subject, even those whose outputs are up to date.
-        #[arg(long)]
-        force: bool,
-        #[command(flatten)]
-        face: FaceArgs,
-        #[command(flatten)]
-        output: OutputArgs,
-    },
-    /// Detect the face in each photo and find its 68 landmarks: writes `NAME.pts` (iBUG,
-    /// readable back by `reconstruct --landmarks DIR`), with `--json` also `NAME.json` (the
-    /// project's landmark JSON), and `overlays/NAME.png` (the photo with the face box and the
-    /// points, or why none were found).
-    Landmarks {
-        /// Photos (JPEG, PNG, BMP, TIFF, WebP).
-        photos: Vec<PathBuf>,
-        /// A directory of photos (every image file in it, by name).
-        #[arg(long = "photos")]
-        photo_dir: Option<PathBuf>,
-        /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
-        /// downloads it). Default: $SPLINEFACE_LANDMARK_MODEL.
-        #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
-        landmark_model: Option<PathBuf>,
-        /// The directory to write into (created if missing).
-        #[arg(long)]
-        out: PathBuf,
-        /// Also write each photo's landmarks as landmark JSON (`NAME.json`).
-        #[arg(long)]
-        json: bool,
-    },
-    /// Write dlib's landmark model in splineface's compact form, which loads in a fraction of
-    /// the time (the same trees, bit for bit; `--landmark-model` takes either). An existing
-    /// output made from the same `.dat` (by its recorded length and hash) is left as it is.
-    CompactModel {
-        /// dlib's `shape_predictor_68_face_landmarks.dat`.
-        model: PathBuf,
-        /// The compact file to write (e.g. `shape_predictor_68_face_landmarks.sfsp`).
-        #[arg(long)]
-        out: PathBuf,
-    },
-    /// Run the whole pipeline on the embedded demo subject: render a dozen photos of it under
-    /// varied poses, reconstruct the face and compare it with the truth.
-    #[command(allow_negative_numbers = true)]
-    Demo {
-        /// The directory to write into (created if missing).
-        #[arg(long, default_value = "splineface-demo")]
-        out: PathBuf,
-        /// How many photos to take.
-        #[arg(long, default_value_t = 12)]
-        photos: usize,
-        /// Landmark noise, percent of the eye distance.
-        #[arg(long, default_value_t = 1.0)]
-        noise: f64,
-        /// The random seed of the poses and the noise.
-        #[arg(long, default_value_t = 2016)]
-        seed: u64,
-        #[command(flatten)]
-        output: OutputArgs,
-    },
-    /// Render a mesh's orthographic depth map: EXR (float32 `Z` with a coverage channel `A`)
-    /// or 16-bit PNG (0 = background), chosen by the output's extension.
-    #[command(allow_negative_numbers = true)]
-    RenderDepth {
-        /// The mesh: OBJ, PLY, glTF or GLB.
-        mesh: PathBuf,
-        /// The depth map to write: `.exr` or `.png`.
-        #[arg(long)]
-        out: PathBuf,
-        /// Pixels: `W` (square) or `WxH`.
-        #[arg(long, default_value = "512")]
-        size: String,
-        /// `front`, or `YAW,PITCH,ROLL` in degrees (the pose convention of `structure.json`).
-        #[arg(long, default_value = "front", allow_hyphen_values = true)]
-        view: String,
-        /// Also write a shaded preview (PNG).
-        #[arg(long)]
-        preview: Option<PathBuf>,
-    },
-    /// Compare a reconstruction with a ground-truth scan: align them, render both depth maps
-    /// and write the |Δz| heatmap, the depth maps and stats.json (the paper's measures and
-    /// millimetre errors) into a directory.
-    #[command(allow_negative_numbers = true)]
-    Compare {
-        /// The reconstructed face (OBJ, PLY, glTF or GLB).
-        reconstruction: PathBuf,
-        /// The ground-truth scan.
-        truth: PathBuf,
-        /// The directory to write into (created if missing).
-        #[arg(long)]
-        out: PathBuf,
-        /// The reconstruction's landmarks (JSON with 3D points, or 68 vertex indices); with
-        /// `--truth-landmarks`, the two are aligned by a similarity between their structures
-        /// instead of rigid ICP.
-        #[arg(long, requires = "truth_landmarks")]
-        reconstruction_landmarks: Option<PathBuf>,
-        /// The truth's landmarks (as above).
-        #[arg(long, requires = "reconstruction_landmarks")]
-        truth_landmarks: Option<PathBuf>,
-        /// Units of the reconstruction's coordinates: mm, cm or m.
-        #[arg(long, default_value = "mm")]
-        reconstruction_units: String,
-        /// Units of the truth's coordinates: mm, cm or m.
-        #[arg(long, default_value = "mm")]
-        truth_units: String,
-        /// Pixels along the depth maps' longer side.
-        #[arg(long, default_value_t = 512)]
-        size: usize,
-        /// The heatmap's scale top in mm (default: the 99th percentile of |Δz|).
-        #[arg(long)]
-        max: Option<f64>,
-    },
-}
-
-/// Where the face's landmarks and reference come from (`reconstruct`, `batch`).
-#[derive(clap::Args)]
-struct FaceArgs {
-    /// A reference face file (default: the embedded ICT mean face).
-    #[arg(long)]
-    reference: Option<PathBuf>,
-    /// dlib's 68-point model (`shape_predictor_68_face_landmarks.dat`; `tools/fetch-models`
-    /// downloads it) for photos without a landmark file: faces are then detected and
-    /// landmarked. Default: $SPLINEFACE_LANDMARK_MODEL.
-    #[arg(long, env = "SPLINEFACE_LANDMARK_MODEL")]
-    landmark_model: Option<PathBuf>,
-}
-
-/// Output options shared by `reconstruct`, `batch` and `demo`.
-#[derive(clap::Args)]
-struct OutputArgs {
-    /// Output units: `mm` or `canonical` (the paper's: 50 between the eye centres).
-    #[arg(long, default_value = "mm")]
-    units: String,
-    /// The distance between the eye centres in millimetres, for `--units mm`.
-    #[arg(long, default_value_t = 63.0)]
-    eye_distance: f64,
-    /// Where the face's shape comes from: `space` (default, by measurement: the reference's
-    /// face space fitted to the photos' points) or `deformed` (the reference deformed to the
-    /// estimated structure, the paper's way; also used when the reference has no space).
-    #[arg(long, default_value = "space")]
-    shape: String,
-    /// The face-space fit's landmark noise per coordinate, canonical units (larger keeps the
-    /// face nearer the mean).
-    #[arg(long, default_value_t = splineface::pipeline::Shape::DEFAULT_NOISE)]
-    space_noise: f64,
-    /// The prior deviation of each photo's expression weights in the face-space fit (larger
-    /// lets the photos' points pull harder on the expression).
-    #[arg(long, default_value_t = splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA)]
-    expression_sigma: f64,
-    /// Take every photo as neutral: fit no expressions.
-    #[arg(long)]
-    no_expressions: bool,
-    /// Make the face with this photo's expression (its file stem, as the report names it)
-    /// instead of the neutral identity.
-    #[arg(long, value_name = "PHOTO")]
-    expression_of: Option<String>,
-    /// Keep the landmark fit: do not refine the face with the photos' pixels (the refinement
-    /// makes the photos agree on what lies at each point of the face; it needs images and
-    /// `--shape space`).
-    #[arg(long)]
-    no_refine: bool,
-    /// The surface deformation of `--shape deformed`: `local` (default, by measurement) or
-    /// `affine` (the paper's).
-    #[arg(long, default_value = "local")]
-    deformation: String,
-    /// Mesh vertex spacing, canonical units.
-    #[arg(long, default_value_t = 1.0)]
-    spacing: f64,
-    /// The depth map's larger side, pixels.
-    #[arg(long, default_value_t = 512)]
-    depth_size: usize,
-    /// The texture atlas's side (`face.png`), texels: 16 to 8192.
-    #[arg(long, default_value_t = 1024)]
-    texture_size: u32,
-    /// Stop with an error when fewer photos than this are usable (one photo measured worse
-    /// than the unchanged mean face; see tools/results/evaluation.md).
-    #[arg(long, default_value_t = splineface::pipeline::MIN_PHOTOS)]
-    min_photos: usize,
-}
-
-impl OutputArgs {
-    /// The index of `--expression-of`'s photo among `inputs`.
-    fn expression_photo(&self, inputs: &[Input]) -> Result<Option<usize>> {
-        let Some(name) = &self.expression_of else {
-            return Ok(None);
-        };
-        splineface::pipeline::photo_index(inputs, name)
-            .map(Some)
-            .with_context(|| format!("--expression-of {name}"))
-    }
-
-    /// The pipeline's options, checked by the library ([`splineface::pipeline::Settings`]).
-    fn options(&self) -> Result<PipelineOptions> {
-        let settings = splineface::pipeline::Settings {
-            units: self.units.clone(),
-            eye_distance: self.eye_distance,
-            shape: self.shape.clone(),
-            space_noise: self.space_noise,
-            expression_sigma: self.expression_sigma,
-            expressions: !self.no_expressions,
-            refine: !self.no_refine,
-            deformation: self.deformation.clone(),
-            spacing: self.spacing,
-            depth_size: self.depth_size,
-            texture_size: self.texture_size,
-            min_photos: self.min_photos,
-        };
-        settings
-            .options()
-            .map_err(|e| anyhow::anyhow!("--{} {}: {}", e.setting.replace('_', "-"), e.value, e.expected))
-    }
-}
+use splineface::render::{DepthFormat, DepthMap, MAX_SIDE, View, shaded_png};
 
 fn main() -> ExitCode {
     let result = run(Cli::parse());
@@ -348,127 +36,15 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Inspect { surface } => inspect(&surface),
-        Command::FitReference {
-            meshes,
-            landmarks,
-            out,
-            grid,
-            smoothness,
-            sample_spacing,
-            note,
-            identity_modes,
-            expression_modes,
-            expression_names,
-            modes_note,
-            space_from_scans,
-        } => {
-            let options = ReferenceOptions {
-                grid,
-                smoothness,
-                sample_spacing,
-                ..ReferenceOptions::default()
-            };
-            let modes = identity_modes.map(|identity| ModeFiles {
-                identity,
-                expressions: expression_modes.zip(expression_names),
-                note: modes_note,
-            });
-            fit_reference(
-                &meshes,
-                &landmarks,
-                &out,
-                &options,
-                &note,
-                modes.as_ref(),
-                space_from_scans,
-            )
-        }
-        Command::Reconstruct {
-            photos,
-            photo_dir,
-            landmarks,
-            out,
-            face,
-            output,
-        } => reconstruct_command(
-            &photos,
-            photo_dir.as_deref(),
-            landmarks.as_deref(),
-            face.reference.as_deref(),
-            face.landmark_model.as_deref(),
-            &out,
-            &output,
-        ),
-        Command::Batch {
-            root,
-            out,
-            force,
-            face,
-            output,
-        } => batch_command(
-            &root,
-            face.reference.as_deref(),
-            face.landmark_model.as_deref(),
-            &out,
-            force,
-            &output,
-        ),
-        Command::CompactModel { model, out } => compact_model(&model, &out),
-        Command::Landmarks {
-            photos,
-            photo_dir,
-            landmark_model,
-            out,
-            json,
-        } => landmarks_command(
-            &photos,
-            photo_dir.as_deref(),
-            landmark_model.as_deref(),
-            &out,
-            json,
-        ),
-        Command::Demo {
-            out,
-            photos,
-            noise,
-            seed,
-            output,
-        } => demo_command(&out, photos, noise, seed, &output),
-        Command::RenderDepth {
-            mesh,
-            out,
-            size,
-            view,
-            preview,
-        } => render_depth(&mesh, &out, &size, &view, preview.as_deref()),
-        Command::Compare {
-            reconstruction,
-            truth,
-            out,
-            reconstruction_landmarks,
-            truth_landmarks,
-            reconstruction_units,
-            truth_units,
-            size,
-            max,
-        } => compare(&CompareArgs {
-            files: MeshFiles {
-                reconstruction,
-                truth,
-                landmarks: reconstruction_landmarks.zip(truth_landmarks),
-                units: (
-                    length_unit(&reconstruction_units, "--reconstruction-units")?,
-                    length_unit(&truth_units, "--truth-units")?,
-                ),
-            },
-            out,
-            options: CompareOptions {
-                size,
-                heatmap_max: max,
-                ..CompareOptions::default()
-            },
-        }),
+        Command::Inspect(a) => inspect(&a.surface),
+        Command::FitReference(a) => fit_reference(&a),
+        Command::Reconstruct(a) => reconstruct_command(&a),
+        Command::Batch(a) => batch_command(&a),
+        Command::CompactModel(a) => compact_model(&a.model, &a.out),
+        Command::Landmarks(a) => landmarks_command(&a),
+        Command::Demo(a) => demo_command(&a),
+        Command::RenderDepth(a) => render_depth(&a),
+        Command::Compare(a) => compare(&a),
     }
 }
 
@@ -487,18 +63,18 @@ fn parse_size(text: &str) -> Result<(usize, usize)> {
     size.with_context(|| format!("--size `{text}`: expected W or WxH, each between 1 and {MAX_SIDE}"))
 }
 
-fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: Option<&Path>) -> Result<()> {
+fn render_depth(a: &RenderDepthArgs) -> Result<()> {
+    let (mesh_path, out, size, view, preview) = (
+        a.mesh.as_path(),
+        a.out.as_path(),
+        &a.size,
+        &a.view,
+        a.preview.as_deref(),
+    );
     let (width, height) = parse_size(size)?;
     let view = View::parse(view).map_err(|e| anyhow::anyhow!("--view: {e}"))?;
-    let extension = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    let exr = match extension.as_deref() {
-        Some("exr") => true,
-        Some("png") => false,
-        _ => bail!("{}: the depth map must be .exr or .png", out.display()),
-    };
+    let format = DepthFormat::from_path(out)
+        .with_context(|| format!("{}: the depth map must be .exr or .png", out.display()))?;
     if let Some(p) = preview
         && !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))
     {
@@ -509,19 +85,12 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
         check_output_file(p)?;
     }
     let mesh = read_mesh(mesh_path)?;
-    let raster = frame_raster(mesh.positions().iter().copied(), &view, width, height, 0.02)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh_path.display()))?;
     let start = std::time::Instant::now();
-    let map = DepthMap::render(&mesh, &view, &raster);
+    let map = DepthMap::framed(&mesh, &view, width, height)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh_path.display()))?;
     let elapsed = start.elapsed();
     let encode_error = |e: splineface::io::EncodeError| anyhow::anyhow!("{}: {e}", out.display());
-    let bytes = if exr {
-        encode_depth_exr(&map)
-    } else {
-        encode_depth_png(&map)
-    }
-    .map_err(encode_error)?;
-    let mut files = vec![(out.to_path_buf(), bytes)];
+    let mut files = vec![(out.to_path_buf(), format.encode(&map).map_err(encode_error)?)];
     if let Some(p) = preview {
         files.push((p.to_path_buf(), shaded_png(&map).map_err(encode_error)?));
     }
@@ -530,7 +99,7 @@ fn render_depth(mesh_path: &Path, out: &Path, size: &str, view: &str, preview: O
     println!("{}", out.display());
     println!(
         "  pixels      {width} × {height}, {:.4} units each",
-        raster.spacing
+        map.raster.spacing
     );
     println!("  covered     {} pixels", map.covered());
     println!("  heights     {lo:.3} to {hi:.3}");
@@ -562,35 +131,43 @@ fn length_unit(text: &str, flag: &str) -> Result<LengthUnit> {
     LengthUnit::parse(text).with_context(|| format!("{flag} `{text}`: expected mm, cm or m"))
 }
 
-struct CompareArgs {
-    files: MeshFiles,
-    out: PathBuf,
-    options: CompareOptions,
-}
-
-fn compare(args: &CompareArgs) -> Result<()> {
-    args.options
+fn compare(a: &CompareArgs) -> Result<()> {
+    let files = MeshFiles {
+        reconstruction: a.reconstruction.clone(),
+        truth: a.truth.clone(),
+        landmarks: a.reconstruction_landmarks.clone().zip(a.truth_landmarks.clone()),
+        units: (
+            length_unit(&a.reconstruction_units, "--reconstruction-units")?,
+            length_unit(&a.truth_units, "--truth-units")?,
+        ),
+    };
+    let options = CompareOptions {
+        size: a.size,
+        heatmap_max: a.max,
+        ..CompareOptions::default()
+    };
+    options
         .validate()
         .map_err(|e| anyhow::anyhow!(e.flag_message()))?;
-    check_output_dir(&args.out)?;
+    check_output_dir(&a.out)?;
     let start = std::time::Instant::now();
     let FileComparison {
         comparison: result,
         mean_face,
-    } = compare_files(&args.files, &args.options)?;
+    } = compare_files(&files, &options)?;
     let elapsed = start.elapsed();
     let mut extra = serde_json::Map::new();
     extra.insert(
         "reconstruction".into(),
-        args.files.reconstruction.display().to_string().into(),
+        files.reconstruction.display().to_string().into(),
     );
-    extra.insert("truth".into(), args.files.truth.display().to_string().into());
+    extra.insert("truth".into(), files.truth.display().to_string().into());
     extra.insert("units".into(), "mm".into());
     extra.insert("heatmap_max".into(), result.heatmap_max.into());
     extra.insert("inner_face_mean_face".into(), serde_json::to_value(mean_face)?);
-    write_into(&args.out, &result.files(extra, true)?)?;
+    write_into(&a.out, &result.files(extra, true)?)?;
     let s = &result.stats;
-    println!("{}", args.out.display());
+    println!("{}", a.out.display());
     println!(
         "  alignment      {} (scale {:.4}, RMS {:.3} mm)",
         s.alignment.method, s.alignment.scale, s.alignment.rms
@@ -653,15 +230,21 @@ fn inspect(path: &Path) -> Result<()> {
     Ok(())
 }
 
-fn fit_reference(
-    meshes: &[PathBuf],
-    landmarks: &[PathBuf],
-    out: &Path,
-    options: &ReferenceOptions,
-    note: &str,
-    modes: Option<&ModeFiles>,
-    space_from_scans: bool,
-) -> Result<()> {
+fn fit_reference(a: &FitReferenceArgs) -> Result<()> {
+    let (meshes, landmarks, out, note) = (&a.meshes, &a.landmarks, a.out.as_path(), a.note.as_str());
+    let options = &ReferenceOptions {
+        grid: a.grid,
+        smoothness: a.smoothness,
+        sample_spacing: a.sample_spacing,
+        ..ReferenceOptions::default()
+    };
+    let modes = a.identity_modes.clone().map(|identity| ModeFiles {
+        identity,
+        expressions: a.expression_modes.clone().zip(a.expression_names.clone()),
+        note: a.modes_note.clone(),
+    });
+    let modes = modes.as_ref();
+    let space_from_scans = a.space_from_scans;
     if meshes.len() != landmarks.len() {
         bail!(
             "{} --mesh but {} --landmarks: give one landmark file per scan",
@@ -761,15 +344,10 @@ fn progress(message: &str) {
     }
 }
 
-fn reconstruct_command(
-    photos: &[PathBuf],
-    photo_dir: Option<&Path>,
-    landmark_dir: Option<&Path>,
-    reference_path: Option<&Path>,
-    landmark_model: Option<&Path>,
-    out: &Path,
-    output: &OutputArgs,
-) -> Result<()> {
+fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
+    let (photos, photo_dir, landmark_dir) = (&a.photos, a.photo_dir.as_deref(), a.landmarks.as_deref());
+    let (reference_path, landmark_model) = (a.face.reference.as_deref(), a.face.landmark_model.as_deref());
+    let (out, output) = (a.out.as_path(), &a.output);
     let start = std::time::Instant::now();
     let options = output.options()?;
     check_output_dir(out)?;
@@ -896,17 +474,11 @@ fn read_reference(path: Option<&Path>) -> Result<ReferenceFace> {
     }
 }
 
-fn batch_command(
-    root: &Path,
-    reference_path: Option<&Path>,
-    landmark_model: Option<&Path>,
-    out: &Path,
-    force: bool,
-    output: &OutputArgs,
-) -> Result<()> {
-    use rayon::prelude::*;
+fn batch_command(a: &BatchArgs) -> Result<()> {
+    let (root, out, force, output) = (a.root.as_path(), a.out.as_path(), a.force, &a.output);
+    let (reference_path, landmark_model) = (a.face.reference.as_deref(), a.face.landmark_model.as_deref());
     use splineface::batch::{
-        BatchJob, Status, check_output, file_identity, run_subject, subjects, write_summary,
+        BatchJob, Status, check_output, file_identity, run_subjects, status_counts, subjects, write_summary,
     };
     let options = output.options()?;
     if output.expression_of.is_some() {
@@ -945,48 +517,35 @@ fn batch_command(
             bar
         })
     };
-    let finished = std::sync::atomic::AtomicUsize::new(0);
-    // Subjects in parallel (each one's stages are parallel too; rayon shares the cores).
-    let rows: Vec<_> = subjects
-        .par_iter()
-        .map(|subject| {
-            let row = run_subject(subject, out, &job);
-            let done = finished.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-            let line = format!(
-                "{}: {}{} ({:.1} s)",
-                row.subject,
-                row.status.name(),
-                if row.message.is_empty() {
-                    String::new()
-                } else {
-                    format!(": {}", row.message)
-                },
-                row.seconds
-            );
-            match &bar {
-                Some(bar) => {
-                    bar.println(line);
-                    bar.inc(1);
-                }
-                None => {
-                    let elapsed = start.elapsed().as_secs_f64();
-                    let eta = elapsed / done as f64 * (total - done) as f64;
-                    eprintln!("splineface: [{done}/{total}, ETA {eta:.0} s] {line}");
-                }
+    let rows = run_subjects(&subjects, out, &job, |row, done| {
+        let line = format!(
+            "{}: {}{} ({:.1} s)",
+            row.subject,
+            row.status.name(),
+            if row.message.is_empty() {
+                String::new()
+            } else {
+                format!(": {}", row.message)
+            },
+            row.seconds
+        );
+        match &bar {
+            Some(bar) => {
+                bar.println(line);
+                bar.inc(1);
             }
-            row
-        })
-        .collect();
+            None => {
+                let elapsed = start.elapsed().as_secs_f64();
+                let eta = elapsed / done as f64 * (total - done) as f64;
+                eprintln!("splineface: [{done}/{total}, ETA {eta:.0} s] {line}");
+            }
+        }
+    });
     if let Some(bar) = &bar {
         bar.finish_and_clear();
     }
     write_summary(out, &rows)?;
-    let count = |s: Status| rows.iter().filter(|r| r.status == s).count();
-    let (done, unchanged, failed) = (
-        count(Status::Done),
-        count(Status::Unchanged),
-        count(Status::Failed),
-    );
+    let [done, unchanged, failed] = status_counts(&rows);
     let seconds = start.elapsed().as_secs_f64();
     println!("{}", out.display());
     println!("  subjects   {total}: {done} done, {unchanged} unchanged, {failed} failed");
@@ -1012,7 +571,8 @@ fn batch_command(
     Ok(())
 }
 
-fn demo_command(out: &Path, photos: usize, noise: f64, seed: u64, output: &OutputArgs) -> Result<()> {
+fn demo_command(a: &DemoArgs) -> Result<()> {
+    let (out, photos, noise, seed, output) = (a.out.as_path(), a.photos, a.noise, a.seed, &a.output);
     let mut options = output.options()?;
     let scene_options = splineface::demo::SceneOptions {
         photos,
@@ -1140,13 +700,10 @@ fn compact_model(model: &Path, out: &Path) -> Result<()> {
     Ok(())
 }
 
-fn landmarks_command(
-    photos: &[PathBuf],
-    photo_dir: Option<&Path>,
-    landmark_model: Option<&Path>,
-    out: &Path,
-    json: bool,
-) -> Result<()> {
+fn landmarks_command(a: &LandmarksArgs) -> Result<()> {
+    let (photos, photo_dir, landmark_model) =
+        (&a.photos, a.photo_dir.as_deref(), a.landmark_model.as_deref());
+    let (out, json) = (a.out.as_path(), a.json);
     let paths = photo_list(photos, photo_dir)?;
     if paths.is_empty() {
         bail!("no photos: give PHOTO... or --photos DIR");
