@@ -197,6 +197,174 @@ fn from_matrix3(m: &Matrix3<Real>) -> Matrix2x3<Real> {
     m.fixed_view::<2, 3>(0, 0).into_owned()
 }
 
+/// Checks [`RaslOptions`]: window sides of 16 to 1024, positive weights and tolerances, a
+/// penalty growth above 1, iteration caps of at least 1.
+fn check_options(options: &RaslOptions) -> Result<(), AlignError> {
+    let bad_option = |what: String| AlignError::Frontal { problem: what };
+    if !(16..=1024).contains(&options.width) || !(16..=1024).contains(&options.height) {
+        return Err(bad_option(format!(
+            "RASL window {}×{}: each side must be between 16 and 1024",
+            options.width, options.height
+        )));
+    }
+    for (name, value) in [
+        ("lambda_c", options.lambda_c),
+        ("outer_tolerance", options.outer_tolerance),
+        ("inner_tolerance", options.inner_tolerance),
+    ] {
+        if !(value > 0.0 && value.is_finite()) {
+            return Err(bad_option(format!(
+                "RASL option {name} = {value} must be positive"
+            )));
+        }
+    }
+    if !(options.rho > 1.0 && options.rho.is_finite()) {
+        return Err(bad_option(format!(
+            "RASL option rho = {} must be above 1",
+            options.rho
+        )));
+    }
+    if options.max_outer == 0 || options.max_inner == 0 {
+        return Err(bad_option("RASL iteration caps must be at least 1".into()));
+    }
+    Ok(())
+}
+
+/// Each usable photo's two columns (the photo, then its mirror image with its points mirrored
+/// and relabelled), with the usable photos' names and the others' reasons.
+fn columns_of(photos: &[RaslPhoto], options: &RaslOptions) -> (Vec<Column>, Vec<String>, Vec<Dropped>) {
+    let mut dropped = Vec::new();
+    let mut kept = Vec::new();
+    let mut columns = Vec::new();
+    for photo in photos {
+        match check(photo) {
+            Err(reason) => dropped.push(Dropped {
+                name: photo.points.name.clone(),
+                reason,
+            }),
+            Ok(()) => {
+                kept.push(photo.points.name.clone());
+                let w = (photo.image.width() - 1) as Real;
+                let mirrored_points: Vec<Point2<Real>> = structure::POINTS
+                    .iter()
+                    .map(|def| {
+                        let p = photo.points.points[def.mirror];
+                        Point2::new(w - p.x, p.y)
+                    })
+                    .collect();
+                let window = (options.width, options.height);
+                columns.push(Column::new(
+                    &photo.image,
+                    false,
+                    photo.points.points.clone(),
+                    window,
+                ));
+                columns.push(Column::new(&photo.image, true, mirrored_points, window));
+            }
+        }
+    }
+    (columns, kept, dropped)
+}
+
+/// The mean of the warps' matrices.
+fn mean_warp(warps: &[Matrix2x3<Real>]) -> Matrix2x3<Real> {
+    warps.iter().fold(Matrix2x3::zeros(), |s, w| s + w) / warps.len() as Real
+}
+
+/// Restores the mean warp after a step: `τᵢ ← τᵢ ∘ G` with `mean(τ ∘ G) = mean(τ⁰)` (left as
+/// they are when the mean's linear part is singular).
+fn restore_mean(warps: &mut [Matrix2x3<Real>], initial_mean: &Matrix2x3<Real>) {
+    // Restore the mean warp: τᵢ ← τᵢ ∘ G with mean(τ ∘ G) = mean(τ⁰).
+    let mean = mean_warp(warps);
+    let (mean_linear, start_linear) = (
+        mean.fixed_view::<2, 2>(0, 0).into_owned(),
+        initial_mean.fixed_view::<2, 2>(0, 0).into_owned(),
+    );
+    if let Some(inverse) = mean_linear.try_inverse() {
+        let g_linear = inverse * start_linear;
+        let g_shift = inverse * (initial_mean.column(2) - mean.column(2));
+        let g = Matrix3::new(
+            g_linear[(0, 0)],
+            g_linear[(0, 1)],
+            g_shift.x,
+            g_linear[(1, 0)],
+            g_linear[(1, 1)],
+            g_shift.y,
+            0.0,
+            0.0,
+            1.0,
+        );
+        for warp in warps.iter_mut() {
+            *warp = from_matrix3(&(crate::geometry::homogeneous(warp) * g));
+        }
+    }
+}
+
+/// The frontal structure from the final warps: the mean of `τᵢ⁻¹(Sᵢ)` in window pixels (y
+/// down), unified; each photo's and mirror's map to the frontal plane; the residual.
+fn frontal_from_warps(columns: &[Column], warps: &[Matrix2x3<Real>]) -> Result<FrontalStructure, AlignError> {
+    let bad_option = |what: String| AlignError::Frontal { problem: what };
+    let n = columns.len();
+    // The frontal structure: the mean of τᵢ⁻¹(Sᵢ), in window pixels (y down), then unified.
+    let inverses: Vec<Matrix3<Real>> = warps
+        .iter()
+        .map(|w| {
+            crate::geometry::homogeneous(w)
+                .try_inverse()
+                .unwrap_or_else(Matrix3::identity)
+        })
+        .collect();
+    let in_window: Vec<Vec<Point2<Real>>> = columns
+        .iter()
+        .zip(&inverses)
+        .map(|(c, inv)| {
+            c.points
+                .iter()
+                .map(|p| apply_affine(&from_matrix3(inv), p))
+                .collect()
+        })
+        .collect();
+    let mean: Vec<Point2<Real>> = (0..POINT_COUNT)
+        .map(|k| Point2::from(in_window.iter().fold(Vector2::zeros(), |s, ps| s + ps[k].coords) / n as Real))
+        .collect();
+    // Window (y down) → y up, then the similarity that puts the eye centres at (±25, 0).
+    let flipped: Vec<Point2<Real>> = mean.iter().map(|p| Point2::new(p.x, -p.y)).collect();
+    let (unifying, frontal_points) =
+        structure::unify_2d(&flipped).map_err(|e| bad_option(format!("the aligned structure: {e}")))?;
+    let window_to_canonical =
+        unifying.to_homogeneous() * Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
+    // A kept photo's warp in FrontalStructure maps its y-up points (x, −v) to the plane.
+    let flip = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
+    let mut photo_warps = Vec::with_capacity(n / 2);
+    let mut mirror_warps = Vec::with_capacity(n / 2);
+    for (k, inv) in inverses.iter().enumerate() {
+        if k % 2 == 0 {
+            photo_warps.push(from_matrix3(&(window_to_canonical * inv * flip)));
+        } else {
+            // The mirror's pixels are (w − 1 − x, y) of the photo's; PhotoPoints::mirrored_y_up
+            // gives (−x, −y): x ↦ w − 1 + x′ for x′ = −x.
+            let w = (columns[k].full_width - 1) as Real;
+            let unmirror = Matrix3::new(1.0, 0.0, w, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
+            mirror_warps.push(from_matrix3(&(window_to_canonical * inv * unmirror)));
+        }
+    }
+    let mut residual = 0.0;
+    for ps in &in_window {
+        for (k, p) in ps.iter().enumerate() {
+            let q = from_matrix3(&window_to_canonical);
+            residual += (apply_affine(&q, p) - frontal_points[k]).norm_squared();
+        }
+    }
+    let residual_rms = (residual / (n * POINT_COUNT) as Real).sqrt();
+    Ok(FrontalStructure {
+        points: frontal_points,
+        warps: photo_warps,
+        mirror_warps,
+        residual_rms,
+        method: FrontalMethod::Rasl,
+    })
+}
+
 /// Checks a photo for RASL.
 fn check(photo: &RaslPhoto) -> Result<(), String> {
     photo.points.validate().map_err(|e| e.to_string())?;
@@ -479,63 +647,9 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
     if photos.is_empty() {
         return Err(AlignError::NoPhotos);
     }
+    check_options(options)?;
     let bad_option = |what: String| AlignError::Frontal { problem: what };
-    if !(16..=1024).contains(&options.width) || !(16..=1024).contains(&options.height) {
-        return Err(bad_option(format!(
-            "RASL window {}×{}: each side must be between 16 and 1024",
-            options.width, options.height
-        )));
-    }
-    for (name, value) in [
-        ("lambda_c", options.lambda_c),
-        ("outer_tolerance", options.outer_tolerance),
-        ("inner_tolerance", options.inner_tolerance),
-    ] {
-        if !(value > 0.0 && value.is_finite()) {
-            return Err(bad_option(format!(
-                "RASL option {name} = {value} must be positive"
-            )));
-        }
-    }
-    if !(options.rho > 1.0 && options.rho.is_finite()) {
-        return Err(bad_option(format!(
-            "RASL option rho = {} must be above 1",
-            options.rho
-        )));
-    }
-    if options.max_outer == 0 || options.max_inner == 0 {
-        return Err(bad_option("RASL iteration caps must be at least 1".into()));
-    }
-    let mut dropped = Vec::new();
-    let mut kept = Vec::new();
-    let mut columns = Vec::new();
-    for photo in photos {
-        match check(photo) {
-            Err(reason) => dropped.push(Dropped {
-                name: photo.points.name.clone(),
-                reason,
-            }),
-            Ok(()) => {
-                kept.push(photo.points.name.clone());
-                let w = (photo.image.width() - 1) as Real;
-                let mirrored_points: Vec<Point2<Real>> = structure::POINTS
-                    .iter()
-                    .map(|def| {
-                        let p = photo.points.points[def.mirror];
-                        Point2::new(w - p.x, p.y)
-                    })
-                    .collect();
-                let window = (options.width, options.height);
-                columns.push(Column::new(
-                    &photo.image,
-                    false,
-                    photo.points.points.clone(),
-                    window,
-                ));
-                columns.push(Column::new(&photo.image, true, mirrored_points, window));
-            }
-        }
-    }
+    let (columns, kept, dropped) = columns_of(photos, options);
     if columns.is_empty() {
         let reasons: Vec<String> = dropped
             .iter()
@@ -555,9 +669,7 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
         .iter()
         .map(|c| similarity(&window_anchors, &anchors(&c.points)))
         .collect();
-    let mean_of =
-        |warps: &[Matrix2x3<Real>]| warps.iter().fold(Matrix2x3::zeros(), |s, w| s + w) / warps.len() as Real;
-    let initial_mean = mean_of(&initial);
+    let initial_mean = mean_warp(&initial);
     let mut warps = initial.clone();
 
     let before = warped_matrix(&columns, &warps, width, height);
@@ -588,30 +700,7 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
                 warp[(p / 3, p % 3)] += step[p];
             }
         }
-        // Restore the mean warp: τᵢ ← τᵢ ∘ G with mean(τ ∘ G) = mean(τ⁰).
-        let mean = mean_of(&warps);
-        let (mean_linear, start_linear) = (
-            mean.fixed_view::<2, 2>(0, 0).into_owned(),
-            initial_mean.fixed_view::<2, 2>(0, 0).into_owned(),
-        );
-        if let Some(inverse) = mean_linear.try_inverse() {
-            let g_linear = inverse * start_linear;
-            let g_shift = inverse * (initial_mean.column(2) - mean.column(2));
-            let g = Matrix3::new(
-                g_linear[(0, 0)],
-                g_linear[(0, 1)],
-                g_shift.x,
-                g_linear[(1, 0)],
-                g_linear[(1, 1)],
-                g_shift.y,
-                0.0,
-                0.0,
-                1.0,
-            );
-            for warp in warps.iter_mut() {
-                *warp = from_matrix3(&(crate::geometry::homogeneous(warp) * g));
-            }
-        }
+        restore_mean(&mut warps, &initial_mean);
         objective.push(value);
         let improved = previous - value;
         previous = value;
@@ -621,65 +710,9 @@ pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslR
     }
     let after = warped_matrix(&columns, &warps, width, height);
 
-    // The frontal structure: the mean of τᵢ⁻¹(Sᵢ), in window pixels (y down), then unified.
-    let inverses: Vec<Matrix3<Real>> = warps
-        .iter()
-        .map(|w| {
-            crate::geometry::homogeneous(w)
-                .try_inverse()
-                .unwrap_or_else(Matrix3::identity)
-        })
-        .collect();
-    let in_window: Vec<Vec<Point2<Real>>> = columns
-        .iter()
-        .zip(&inverses)
-        .map(|(c, inv)| {
-            c.points
-                .iter()
-                .map(|p| apply_affine(&from_matrix3(inv), p))
-                .collect()
-        })
-        .collect();
-    let mean: Vec<Point2<Real>> = (0..POINT_COUNT)
-        .map(|k| Point2::from(in_window.iter().fold(Vector2::zeros(), |s, ps| s + ps[k].coords) / n as Real))
-        .collect();
-    // Window (y down) → y up, then the similarity that puts the eye centres at (±25, 0).
-    let flipped: Vec<Point2<Real>> = mean.iter().map(|p| Point2::new(p.x, -p.y)).collect();
-    let (unifying, frontal_points) =
-        structure::unify_2d(&flipped).map_err(|e| bad_option(format!("the aligned structure: {e}")))?;
-    let window_to_canonical =
-        unifying.to_homogeneous() * Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
-    // A kept photo's warp in FrontalStructure maps its y-up points (x, −v) to the plane.
-    let flip = Matrix3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
-    let mut photo_warps = Vec::with_capacity(n / 2);
-    let mut mirror_warps = Vec::with_capacity(n / 2);
-    for (k, inv) in inverses.iter().enumerate() {
-        if k % 2 == 0 {
-            photo_warps.push(from_matrix3(&(window_to_canonical * inv * flip)));
-        } else {
-            // The mirror's pixels are (w − 1 − x, y) of the photo's; PhotoPoints::mirrored_y_up
-            // gives (−x, −y): x ↦ w − 1 + x′ for x′ = −x.
-            let w = (columns[k].full_width - 1) as Real;
-            let unmirror = Matrix3::new(1.0, 0.0, w, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0);
-            mirror_warps.push(from_matrix3(&(window_to_canonical * inv * unmirror)));
-        }
-    }
-    let mut residual = 0.0;
-    for ps in &in_window {
-        for (k, p) in ps.iter().enumerate() {
-            let q = from_matrix3(&window_to_canonical);
-            residual += (apply_affine(&q, p) - frontal_points[k]).norm_squared();
-        }
-    }
-    let residual_rms = (residual / (n * POINT_COUNT) as Real).sqrt();
+    let frontal = frontal_from_warps(&columns, &warps)?;
     Ok(RaslResult {
-        frontal: FrontalStructure {
-            points: frontal_points,
-            warps: photo_warps,
-            mirror_warps,
-            residual_rms,
-            method: FrontalMethod::Rasl,
-        },
+        frontal,
         kept,
         dropped,
         warps,
