@@ -783,17 +783,12 @@ fn fill_level(level: Vec<[f32; 4]>, side: usize) -> Vec<[f32; 4]> {
         .collect()
 }
 
-/// Bakes a texture atlas for `face` from `photos` (see the module documentation).
-///
-/// # Errors
-/// [`FaceError::Option`] for a size outside 16–8192, a sharpness that is not positive and
-/// finite, no photos, an empty photo, or a photo surface whose parameter domain is not the
-/// face's; [`FaceError::Kernel`] if the surface cannot be evaluated.
-pub fn bake_texture(
+/// [`bake_texture`]'s checks of its inputs.
+fn check_inputs(
     face: &FaceSurface,
     photos: &[TexturePhoto<'_>],
     options: &TextureOptions,
-) -> Result<FaceTexture, FaceError> {
+) -> Result<(), FaceError> {
     if !(16..=8192).contains(&options.size) {
         return Err(FaceError::Option {
             name: "texture size",
@@ -832,12 +827,19 @@ pub fn bake_texture(
             expected: "the face's own parameter domain",
         });
     }
-    let side = options.size as usize;
-    let texels = Texels::new(side, face.clip());
-    let positions = surface_on_texels(face.surface(), side)?;
-    let normals = grid_normals(&positions, side);
-    let table = linear_table();
+    Ok(())
+}
 
+/// Each photo's view of the texels (what it sees of each and how well), taken at its own
+/// surface when it has one; grey photos count a thousandth where a colour photo also sees.
+fn photo_views(
+    photos: &[TexturePhoto<'_>],
+    positions: &[Point3<Real>],
+    normals: &[Vector3<Real>],
+    texels: &Texels,
+    side: usize,
+) -> Result<Vec<PhotoView>, FaceError> {
+    let table = linear_table();
     // The median photo's resolution over the face (its centre's).
     let centre = positions[(side / 2) * side + side / 2];
     let mut resolutions: Vec<Real> = photos
@@ -855,13 +857,13 @@ pub fn bake_texture(
                 own = surface_on_texels(s.surface(), side)?;
                 &own
             }
-            None => &positions,
+            None => positions,
         };
         views.push(photo_view(
             photo,
             at,
-            &normals,
-            &texels,
+            normals,
+            texels,
             reference_resolution,
             &table,
         ));
@@ -877,17 +879,13 @@ pub fn bake_texture(
             view.weights.iter_mut().for_each(|w| *w *= GREY_WEIGHT);
         }
     }
-    let gains = if options.match_colours {
-        colour_gains(&views, &texels)
-    } else {
-        vec![[1.0; 3]; photos.len()]
-    };
+    Ok(views)
+}
 
-    // Blend.
-    let p = options.sharpness;
-    let n = side * side;
-    let m = photos.len();
-    let blended: Vec<Blended> = (0..n)
+/// Every texel's colour, the weighted mean of the photos that see it (weights to the power
+/// `p`, colours times their photo's gain), with its best weight and that photo.
+fn blend(views: &[PhotoView], gains: &[[Real; 3]], p: Real, n: usize) -> Vec<Blended> {
+    (0..n)
         .into_par_iter()
         .map(|k| {
             let (mut sum, mut total, mut best, mut dominant) =
@@ -922,7 +920,11 @@ pub fn bake_texture(
                 }
             }
         })
-        .collect();
+        .collect()
+}
+
+/// Each photo's share of the blend, normalised to sum to 1 (0 each when nothing was seen).
+fn photo_shares(views: &[PhotoView], blended: &[Blended], p: Real, m: usize) -> Vec<Real> {
     // Each photo's share, summed over fixed chunks in order (the same to the last bit
     // whatever the number of threads).
     let partial: Vec<Vec<Real>> = blended
@@ -946,11 +948,67 @@ pub fn bake_texture(
         shares.iter_mut().zip(chunk).for_each(|(s, c)| *s += c);
     }
     let share_total: Real = shares.iter().sum();
-    let shares: Vec<Real> = shares
+    shares
         .into_iter()
         .map(|s| if share_total > 0.0 { s / share_total } else { 0.0 })
-        .collect();
+        .collect()
+}
 
+/// Fills texels no photo saw from their mirror image across the face's midline, where a photo
+/// saw that.
+fn fill_from_mirror(
+    face: &FaceSurface,
+    texels: &Texels,
+    side: usize,
+    (sources, colours, confidence): (&mut [TexelSource], &mut [[f32; 3]], &mut [f32]),
+) {
+    let n = side * side;
+    let frame = face.frame();
+    for k in 0..n {
+        if sources[k] != TexelSource::Filled {
+            continue;
+        }
+        let [u, v] = texels.param(k);
+        let q = frame.position(u, v);
+        let m = frame.parameters(-q.x, q.y);
+        let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+        let r = (((1.0 - m.y) * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+        let j = r * side + c;
+        if sources[j] == TexelSource::Seen {
+            sources[k] = TexelSource::Mirrored;
+            colours[k] = colours[j];
+            confidence[k] = confidence[j];
+        }
+    }
+}
+
+/// Bakes a texture atlas for `face` from `photos` (see the module documentation).
+///
+/// # Errors
+/// [`FaceError::Option`] for a size outside 16–8192, a sharpness that is not positive and
+/// finite, no photos, an empty photo, or a photo surface whose parameter domain is not the
+/// face's; [`FaceError::Kernel`] if the surface cannot be evaluated.
+pub fn bake_texture(
+    face: &FaceSurface,
+    photos: &[TexturePhoto<'_>],
+    options: &TextureOptions,
+) -> Result<FaceTexture, FaceError> {
+    check_inputs(face, photos, options)?;
+    let side = options.size as usize;
+    let texels = Texels::new(side, face.clip());
+    let positions = surface_on_texels(face.surface(), side)?;
+    let normals = grid_normals(&positions, side);
+
+    let views = photo_views(photos, &positions, &normals, &texels, side)?;
+    let gains = if options.match_colours {
+        colour_gains(&views, &texels)
+    } else {
+        vec![[1.0; 3]; photos.len()]
+    };
+
+    let (n, m) = (side * side, photos.len());
+    let blended = blend(&views, &gains, options.sharpness, n);
+    let shares = photo_shares(&views, &blended, options.sharpness, m);
     let mut colours: Vec<[f32; 3]> = blended.iter().map(|b| b.colour).collect();
     let mut confidence: Vec<f32> = blended.iter().map(|b| b.best).collect();
     let mut sources: Vec<TexelSource> = (0..n)
@@ -966,23 +1024,7 @@ pub fn bake_texture(
         }
     }
     if options.mirror {
-        let frame = face.frame();
-        for k in 0..n {
-            if sources[k] != TexelSource::Filled {
-                continue;
-            }
-            let [u, v] = texels.param(k);
-            let q = frame.position(u, v);
-            let m = frame.parameters(-q.x, q.y);
-            let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
-            let r = (((1.0 - m.y) * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
-            let j = r * side + c;
-            if sources[j] == TexelSource::Seen {
-                sources[k] = TexelSource::Mirrored;
-                colours[k] = colours[j];
-                confidence[k] = confidence[j];
-            }
-        }
+        fill_from_mirror(face, &texels, side, (&mut sources, &mut colours, &mut confidence));
     }
     let known: Vec<bool> = sources
         .iter()
