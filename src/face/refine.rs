@@ -1707,35 +1707,7 @@ impl FaceSpace {
         point_weights: &[Real; POINT_COUNT],
         options: &RefineOptions,
     ) -> Result<Refinement, FaceError> {
-        let bad = |name: &'static str, value: String, expected: &'static str| {
-            Err(FaceError::Option {
-                name,
-                value,
-                expected,
-            })
-        };
-        if views.len() != fit.poses.len() || views.iter().any(|v| v.points.len() != POINT_COUNT) {
-            return bad(
-                "views",
-                views.len().to_string(),
-                "one per photo of the fit, 40 points each",
-            );
-        }
-        let positive = |v: Real| v > 0.0 && v.is_finite();
-        if !(1..=6).contains(&options.levels) {
-            return bad("levels", options.levels.to_string(), "1 to 6");
-        }
-        for (name, v) in [
-            ("eye pixels", options.eye_pixels),
-            ("spacing", options.spacing),
-            ("sigma", options.sigma),
-            ("beta", options.beta),
-            ("noise", options.noise),
-        ] {
-            if !positive(v) {
-                return bad(name, v.to_string(), "positive and finite");
-            }
-        }
+        check_refine(fit, views, options)?;
         let start = State {
             weights: fit.weights.clone(),
             cameras: fit
@@ -1790,25 +1762,7 @@ impl FaceSpace {
             point_weights,
             units: start.cameras.iter().map(|c| c.scale).collect(),
         };
-        // Each photo's face box: its landmarks' box grown by three quarters of its size (the forehead and
-        // cheeks lie beyond the points), clamped to the image.
-        let boxes: Vec<[Real; 4]> = views
-            .iter()
-            .map(|v| {
-                let (mut x0, mut y0, mut x1, mut y1) = (Real::MAX, Real::MAX, Real::MIN, Real::MIN);
-                for p in v.points {
-                    (x0, x1) = (x0.min(p.x), x1.max(p.x));
-                    (y0, y1) = (y0.min(-p.y), y1.max(-p.y));
-                }
-                let (mx, my) = (0.75 * (x1 - x0), 0.75 * (y1 - y0));
-                [
-                    (x0 - mx).max(0.0),
-                    (y0 - my).max(0.0),
-                    (x1 + mx).min(v.image.width() as Real - 1.0),
-                    (y1 + my).min(v.image.height() as Real - 1.0),
-                ]
-            })
-            .collect();
+        let boxes = face_boxes(views);
         let mut state = start.clone();
         let mut iterations = 0;
         let mut finest = None;
@@ -1841,38 +1795,7 @@ impl FaceSpace {
             if options.photo_weights {
                 level.photo_weights = level.photo_weights(&state);
             }
-            let mut damping = 1e-3;
-            for _ in 0..options.iterations {
-                iterations += 1;
-                let visibility = level.visibility(&state);
-                let cost = level.cost(&state, &visibility);
-                let (h, g) = level.normal_equations(&state, &visibility);
-                let mut improved = false;
-                for _ in 0..8 {
-                    let mut damped = h.clone();
-                    for d in 0..damped.nrows() {
-                        damped[(d, d)] += damping * h[(d, d)].max(1e-9);
-                    }
-                    let Some(chol) = damped.cholesky() else {
-                        damping *= 10.0;
-                        continue;
-                    };
-                    let step = -chol.solve(&g);
-                    let next = state.moved(&step);
-                    let next_cost = level.cost(&next, &visibility);
-                    if next_cost.is_finite() && next_cost < cost {
-                        let relative = (cost - next_cost) / cost.max(1e-12);
-                        state = next;
-                        damping = (damping / 3.0).max(1e-7);
-                        improved = relative > 1e-5;
-                        break;
-                    }
-                    damping *= 10.0;
-                }
-                if !improved {
-                    break;
-                }
-            }
+            state = level.minimise(state, options.iterations, &mut iterations);
             if level_index + 1 == options.levels {
                 finest = Some(level);
             }
@@ -1911,33 +1834,7 @@ impl FaceSpace {
             .iter()
             .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
             .collect();
-        let gain = 1.0 - disagreement.1 / disagreement.0;
-        // A NaN gain (no photo pair saw the face) keeps the landmark fit too.
-        let (accepted, note) = if gain.is_nan() || gain < options.min_gain {
-            (
-                false,
-                format!(
-                    "the photos agree no better on the refined face (disagreement {:.3} → {:.3}): the landmark fit stands",
-                    disagreement.0, disagreement.1
-                ),
-            )
-        } else if landmark_rms.1 > landmark_rms.0 + options.landmark_slack {
-            (
-                false,
-                format!(
-                    "the refined face moved off the landmarks (RMS {:.2} → {:.2} units): the landmark fit stands",
-                    landmark_rms.0, landmark_rms.1
-                ),
-            )
-        } else {
-            (
-                true,
-                format!(
-                    "refined by the photos' agreement: disagreement {:.3} → {:.3}, landmark RMS {:.2} → {:.2} units",
-                    disagreement.0, disagreement.1, landmark_rms.0, landmark_rms.1
-                ),
-            )
-        };
+        let (accepted, note) = verdict(disagreement, landmark_rms, options);
         let kept = if accepted { state } else { start };
         Ok(Refinement {
             displacement: kept.field.iter().map(|&d| Vector3::new(0.0, 0.0, d)).collect(),
@@ -1952,6 +1849,144 @@ impl FaceSpace {
             accepted,
             note,
         })
+    }
+}
+
+/// [`FaceSpace::refine_photos`]' checks: one view per photo of the fit with 40 points, 1 to 6
+/// levels, positive and finite scales and weights.
+fn check_refine(
+    fit: &PhotoSpaceFit,
+    views: &[RefineView<'_>],
+    options: &RefineOptions,
+) -> Result<(), FaceError> {
+    let bad = |name: &'static str, value: String, expected: &'static str| {
+        Err(FaceError::Option {
+            name,
+            value,
+            expected,
+        })
+    };
+    if views.len() != fit.poses.len() || views.iter().any(|v| v.points.len() != POINT_COUNT) {
+        return bad(
+            "views",
+            views.len().to_string(),
+            "one per photo of the fit, 40 points each",
+        );
+    }
+    let positive = |v: Real| v > 0.0 && v.is_finite();
+    if !(1..=6).contains(&options.levels) {
+        return bad("levels", options.levels.to_string(), "1 to 6");
+    }
+    for (name, v) in [
+        ("eye pixels", options.eye_pixels),
+        ("spacing", options.spacing),
+        ("sigma", options.sigma),
+        ("beta", options.beta),
+        ("noise", options.noise),
+    ] {
+        if !positive(v) {
+            return bad(name, v.to_string(), "positive and finite");
+        }
+    }
+    Ok(())
+}
+
+/// Each photo's face box `[x0, y0, x1, y1]`, pixels: its landmarks' box grown by three
+/// quarters of its size (the forehead and cheeks lie beyond the points), clamped to the image.
+fn face_boxes(views: &[RefineView<'_>]) -> Vec<[Real; 4]> {
+    views
+        .iter()
+        .map(|v| {
+            let (mut x0, mut y0, mut x1, mut y1) = (Real::MAX, Real::MAX, Real::MIN, Real::MIN);
+            for p in v.points {
+                (x0, x1) = (x0.min(p.x), x1.max(p.x));
+                (y0, y1) = (y0.min(-p.y), y1.max(-p.y));
+            }
+            let (mx, my) = (0.75 * (x1 - x0), 0.75 * (y1 - y0));
+            [
+                (x0 - mx).max(0.0),
+                (y0 - my).max(0.0),
+                (x1 + mx).min(v.image.width() as Real - 1.0),
+                (y1 + my).min(v.image.height() as Real - 1.0),
+            ]
+        })
+        .collect()
+}
+
+impl Level<'_> {
+    /// Damped Gauss-Newton (Levenberg-Marquardt on the diagonal) from `state` on this level,
+    /// `max_iterations` at most, each counted in `iterations`; stops when a step improves the
+    /// cost by less than 10⁻⁵ of it or no damping finds a better state.
+    fn minimise(&self, mut state: State, max_iterations: usize, iterations: &mut usize) -> State {
+        let mut damping = 1e-3;
+        for _ in 0..max_iterations {
+            *iterations += 1;
+            let visibility = self.visibility(&state);
+            let cost = self.cost(&state, &visibility);
+            let (h, g) = self.normal_equations(&state, &visibility);
+            let mut improved = false;
+            for _ in 0..8 {
+                let mut damped = h.clone();
+                for d in 0..damped.nrows() {
+                    damped[(d, d)] += damping * h[(d, d)].max(1e-9);
+                }
+                let Some(chol) = damped.cholesky() else {
+                    damping *= 10.0;
+                    continue;
+                };
+                let step = -chol.solve(&g);
+                let next = state.moved(&step);
+                let next_cost = self.cost(&next, &visibility);
+                if next_cost.is_finite() && next_cost < cost {
+                    let relative = (cost - next_cost) / cost.max(1e-12);
+                    state = next;
+                    damping = (damping / 3.0).max(1e-7);
+                    improved = relative > 1e-5;
+                    break;
+                }
+                damping *= 10.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        state
+    }
+}
+
+/// Whether the refined face is kept, and why: the photos must agree better by
+/// [`RefineOptions::min_gain`] and the landmarks stay within [`RefineOptions::landmark_slack`].
+fn verdict(
+    disagreement: (Real, Real),
+    landmark_rms: (Real, Real),
+    options: &RefineOptions,
+) -> (bool, String) {
+    let gain = 1.0 - disagreement.1 / disagreement.0;
+    // A NaN gain (no photo pair saw the face) keeps the landmark fit too.
+    if gain.is_nan() || gain < options.min_gain {
+        (
+            false,
+            format!(
+                "the photos agree no better on the refined face (disagreement {:.3} → {:.3}): the landmark fit stands",
+                disagreement.0, disagreement.1
+            ),
+        )
+    } else if landmark_rms.1 > landmark_rms.0 + options.landmark_slack {
+        (
+            false,
+            format!(
+                "the refined face moved off the landmarks (RMS {:.2} → {:.2} units): the landmark fit stands",
+                landmark_rms.0, landmark_rms.1
+            ),
+        )
+    } else {
+        (
+            true,
+            format!(
+                "refined by the photos' agreement: disagreement {:.3} → {:.3}, landmark RMS {:.2} → {:.2} units",
+                disagreement.0, disagreement.1, landmark_rms.0, landmark_rms.1
+            ),
+        )
     }
 }
 
