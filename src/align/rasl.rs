@@ -742,6 +742,133 @@ fn warped_matrix(columns: &[Column], warps: &[Matrix2x3<Real>], width: usize, he
     m
 }
 
+/// What every inner iteration of RASL reads: the data `D` (pixel-major, `dm[j·n + k]`), each
+/// column's gradients (pixel-major too), its factors and its inverse norm, and the sizes.
+struct InnerContext<'a> {
+    dm: &'a [f32],
+    grad: &'a [[f32; 2]],
+    prepared: &'a [Prepared],
+    inverse_norm: &'a [f32],
+    n: usize,
+    d: usize,
+    height: usize,
+}
+
+impl InnerContext<'_> {
+    /// The warp steps `Δτ` for the current `A`, `E`, `Y` and `1/μ` (see the comments).
+    fn warp_steps(
+        &self,
+        a: &[f32],
+        e: &[f32],
+        y: &[f32],
+        inv_mu: f32,
+        steps: &mut [nalgebra::Vector6<Real>],
+    ) {
+        let (dm, grad, n, d, height) = (self.dm, self.grad, self.n, self.d, self.height);
+        // Δτ: δₖ = Qₖᵀtₖ for t = A + E − D − Y/μ, Δτₖ = Rₖ⁻¹δₖ. With Q = J·R⁻¹ and
+        // Jᵀt = (Gᵀt − h·(ỹᵀt))/‖y‖: per column, the six sums of Gᵀt and ỹᵀt.
+        let sums = (0..d.div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut partial = vec![[0.0f32; 7]; n];
+                for j in c * CHUNK..((c + 1) * CHUNK).min(d) {
+                    let (px, py) = ((j / height) as f32, (j % height) as f32);
+                    for (k, acc) in partial.iter_mut().enumerate() {
+                        let x = j * n + k;
+                        let target = a[x] + e[x] - dm[x] - y[x] * inv_mu;
+                        let [gx, gy] = grad[x];
+                        let (tx, ty) = (gx * target, gy * target);
+                        acc[0] += tx * px;
+                        acc[1] += tx * py;
+                        acc[2] += tx;
+                        acc[3] += ty * px;
+                        acc[4] += ty * py;
+                        acc[5] += ty;
+                        acc[6] += dm[x] * target;
+                    }
+                }
+                partial
+                    .iter()
+                    .map(|p| p.map(Real::from))
+                    .collect::<Vec<[Real; 7]>>()
+            })
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![[0.0; 7]; n], |mut s, p| {
+                for (a, b) in s.iter_mut().zip(&p) {
+                    for i in 0..7 {
+                        a[i] += b[i];
+                    }
+                }
+                s
+            });
+        for (k, (sum, column)) in sums.iter().zip(self.prepared).enumerate() {
+            let gt = nalgebra::Vector6::from_column_slice(&sum[..6]);
+            let jt = (gt - column.h * sum[6]) / column.norm;
+            let delta = column
+                .r
+                .tr_solve_upper_triangular(&jt)
+                .unwrap_or_else(nalgebra::Vector6::zeros);
+            steps[k] = column
+                .r
+                .solve_upper_triangular(&delta)
+                .unwrap_or_else(nalgebra::Vector6::zeros);
+        }
+    }
+
+    /// `JΔτ` for the new `steps` into `dt`, the residual `Z = D + JΔτ − A − E`, and the dual
+    /// update `Y += μZ`, in one pass; returns `‖Z‖²`.
+    fn dual_step(
+        &self,
+        steps: &[nalgebra::Vector6<Real>],
+        (a, e): (&[f32], &[f32]),
+        (dt, y): (&mut [f32], &mut [f32]),
+        mu: Real,
+    ) -> Real {
+        let (dm, grad, inverse_norm, n, height) =
+            (self.dm, self.grad, self.inverse_norm, self.n, self.height);
+        let block = CHUNK * n;
+        // Per column, JΔτ at pixel j is (Gⱼ·Δτ − ỹⱼ·(h·Δτ))/‖y‖.
+        let coefficients: Vec<[f32; 7]> = steps
+            .iter()
+            .zip(self.prepared)
+            .map(|(s, p)| {
+                let hs = p.h.dot(s);
+                [s[0], s[1], s[2], s[3], s[4], s[5], hs].map(|v| v as f32)
+            })
+            .collect();
+        // JΔτ, the residual Z = D + JΔτ − A − E, and Y += μZ, in one pass.
+        let mu32 = mu as f32;
+        dt.par_chunks_mut(block)
+            .zip(y.par_chunks_mut(block))
+            .enumerate()
+            .map(|(c, (dt_chunk, y_chunk))| {
+                let mut sum = 0.0f64;
+                let rows = dt_chunk.chunks_exact_mut(n).zip(y_chunk.chunks_exact_mut(n));
+                for (r, (dt_row, y_row)) in rows.enumerate() {
+                    let j = c * CHUNK + r;
+                    let o = j * n;
+                    let (px, py) = ((j / height) as f32, (j % height) as f32);
+                    for k in 0..n {
+                        let x = o + k;
+                        let s = &coefficients[k];
+                        let [gx, gy] = grad[x];
+                        let g_dot = gx * (s[0] * px + s[1] * py + s[2]) + gy * (s[3] * px + s[4] * py + s[5]);
+                        let step = (g_dot - dm[x] * s[6]) * inverse_norm[k];
+                        dt_row[k] = step;
+                        let z = dm[x] + step - a[x] - e[x];
+                        sum += Real::from(z) * Real::from(z);
+                        y_row[k] += mu32 * z;
+                    }
+                }
+                sum
+            })
+            .collect::<Vec<Real>>()
+            .iter()
+            .sum()
+    }
+}
+
 /// The inner augmented-Lagrange loop: returns `A`, `E` (`d × n`), the warp steps `Δτᵢ`, the
 /// iterations run and the objective `‖A‖_* + λ‖E‖₁`.
 ///
@@ -771,6 +898,15 @@ fn inner_loop(
         }
     });
     let inverse_norm: Vec<f32> = prepared.iter().map(|p| (1.0 / p.norm) as f32).collect();
+    let context = InnerContext {
+        dm,
+        grad: &grad,
+        prepared,
+        inverse_norm: &inverse_norm,
+        n,
+        d,
+        height,
+    };
     let mut scratch = vec![0.0f32; d * n];
     let (_, two_norm) = svt_pixel_major(dm, n, Real::INFINITY, &mut scratch);
     let inf_norm = dm.iter().fold(0.0f32, |m, v| m.max(v.abs())) as Real / lambda;
@@ -814,94 +950,8 @@ fn inner_loop(
                 *v = soft_threshold(d + dt - a + y * inv_mu, shrink);
             }
         });
-        // Δτ: δₖ = Qₖᵀtₖ for t = A + E − D − Y/μ, Δτₖ = Rₖ⁻¹δₖ. With Q = J·R⁻¹ and
-        // Jᵀt = (Gᵀt − h·(ỹᵀt))/‖y‖: per column, the six sums of Gᵀt and ỹᵀt.
-        let sums = (0..d.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|c| {
-                let mut partial = vec![[0.0f32; 7]; n];
-                for j in c * CHUNK..((c + 1) * CHUNK).min(d) {
-                    let (px, py) = ((j / height) as f32, (j % height) as f32);
-                    for (k, acc) in partial.iter_mut().enumerate() {
-                        let x = j * n + k;
-                        let target = a[x] + e[x] - dm[x] - y[x] * inv_mu;
-                        let [gx, gy] = grad[x];
-                        let (tx, ty) = (gx * target, gy * target);
-                        acc[0] += tx * px;
-                        acc[1] += tx * py;
-                        acc[2] += tx;
-                        acc[3] += ty * px;
-                        acc[4] += ty * py;
-                        acc[5] += ty;
-                        acc[6] += dm[x] * target;
-                    }
-                }
-                partial
-                    .iter()
-                    .map(|p| p.map(Real::from))
-                    .collect::<Vec<[Real; 7]>>()
-            })
-            .collect::<Vec<_>>()
-            .into_iter()
-            .fold(vec![[0.0; 7]; n], |mut s, p| {
-                for (a, b) in s.iter_mut().zip(&p) {
-                    for i in 0..7 {
-                        a[i] += b[i];
-                    }
-                }
-                s
-            });
-        for (k, (sum, column)) in sums.iter().zip(prepared).enumerate() {
-            let gt = nalgebra::Vector6::from_column_slice(&sum[..6]);
-            let jt = (gt - column.h * sum[6]) / column.norm;
-            let delta = column
-                .r
-                .tr_solve_upper_triangular(&jt)
-                .unwrap_or_else(nalgebra::Vector6::zeros);
-            steps[k] = column
-                .r
-                .solve_upper_triangular(&delta)
-                .unwrap_or_else(nalgebra::Vector6::zeros);
-        }
-        // Per column, JΔτ at pixel j is (Gⱼ·Δτ − ỹⱼ·(h·Δτ))/‖y‖.
-        let coefficients: Vec<[f32; 7]> = steps
-            .iter()
-            .zip(prepared)
-            .map(|(s, p)| {
-                let hs = p.h.dot(s);
-                [s[0], s[1], s[2], s[3], s[4], s[5], hs].map(|v| v as f32)
-            })
-            .collect();
-        // JΔτ, the residual Z = D + JΔτ − A − E, and Y += μZ, in one pass.
-        let mu32 = mu as f32;
-        let residual_squared: Real = dt
-            .par_chunks_mut(block)
-            .zip(y.par_chunks_mut(block))
-            .enumerate()
-            .map(|(c, (dt_chunk, y_chunk))| {
-                let mut sum = 0.0f64;
-                let rows = dt_chunk.chunks_exact_mut(n).zip(y_chunk.chunks_exact_mut(n));
-                for (r, (dt_row, y_row)) in rows.enumerate() {
-                    let j = c * CHUNK + r;
-                    let o = j * n;
-                    let (px, py) = ((j / height) as f32, (j % height) as f32);
-                    for k in 0..n {
-                        let x = o + k;
-                        let s = &coefficients[k];
-                        let [gx, gy] = grad[x];
-                        let g_dot = gx * (s[0] * px + s[1] * py + s[2]) + gy * (s[3] * px + s[4] * py + s[5]);
-                        let step = (g_dot - dm[x] * s[6]) * inverse_norm[k];
-                        dt_row[k] = step;
-                        let z = dm[x] + step - a[x] - e[x];
-                        sum += Real::from(z) * Real::from(z);
-                        y_row[k] += mu32 * z;
-                    }
-                }
-                sum
-            })
-            .collect::<Vec<Real>>()
-            .iter()
-            .sum();
+        context.warp_steps(&a, &e, &y, inv_mu, &mut steps);
+        let residual_squared = context.dual_step(&steps, (&a, &e), (&mut dt, &mut y), mu);
         mu *= rho;
         if residual_squared.sqrt() / data_norm < options.inner_tolerance {
             break;
