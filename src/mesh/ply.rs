@@ -237,6 +237,114 @@ fn header(bytes: &[u8]) -> Result<(Format, Vec<Element>, &[u8]), MeshProblem> {
     Ok((format, elements, body))
 }
 
+/// The vertex element's `x`, `y`, `z` columns and its texture coordinates' (`u v`, `s t`,
+/// `texture_u texture_v` or `texture_s texture_t`), if any.
+fn vertex_columns(element: &Element) -> Result<([usize; 3], Option<[usize; 2]>), MeshProblem> {
+    let find = |names: &[&str]| {
+        element
+            .properties
+            .iter()
+            .position(|p| matches!(p, Property::Scalar { .. }) && names.contains(&p.name()))
+    };
+    let axis = |name: &str| {
+        find(&[name]).ok_or_else(|| syntax("header", format!("the vertex element has no `{name}`")))
+    };
+    let xyz = [axis("x")?, axis("y")?, axis("z")?];
+    let uv = [
+        ["u", "v"],
+        ["s", "t"],
+        ["texture_u", "texture_v"],
+        ["texture_s", "texture_t"],
+    ]
+    .iter()
+    .find_map(|[a, b]| Some([find(&[a])?, find(&[b])?]));
+    Ok((xyz, uv))
+}
+
+/// The face element's vertex-index list column and its per-corner `texcoord` list's, if any.
+fn face_columns(element: &Element) -> Result<(usize, Option<usize>), MeshProblem> {
+    let list = |names: &[&str]| {
+        element
+            .properties
+            .iter()
+            .position(|p| matches!(p, Property::List { .. }) && names.contains(&p.name()))
+    };
+    let indices = list(&["vertex_indices", "vertex_index"])
+        .ok_or_else(|| syntax("header", "the face element has no `vertex_indices` list"))?;
+    Ok((indices, list(&["texcoord"])))
+}
+
+/// A face (a polygon of vertex indices, checked against `vertices`) as a fan of triangles,
+/// with its corners' texture coordinates when the faces carry them.
+fn push_face(
+    face: &[f64],
+    texture: Option<&[f64]>,
+    vertices: usize,
+    location: &dyn Fn() -> String,
+    (triangles, corner_uvs): (&mut Vec<[u32; 3]>, &mut Vec<Point2<Real>>),
+) -> Result<(), MeshProblem> {
+    if face.len() < 3 {
+        return Err(syntax(location(), "a face needs at least three corners"));
+    }
+    let mut corners = Vec::with_capacity(face.len());
+    for &index in face {
+        if index < 0.0 || index.fract() != 0.0 || index >= vertices as f64 {
+            return Err(MeshProblem::IndexOutOfRange {
+                location: location(),
+                index: index as i64,
+                count: vertices,
+                what: "vertices",
+            });
+        }
+        corners.push(index as u32);
+    }
+    if let Some(texture) = texture
+        && texture.len() != 2 * face.len()
+    {
+        return Err(syntax(
+            location(),
+            format!("{} texcoord values for {} corners", texture.len(), face.len()),
+        ));
+    }
+    for j in 1..corners.len() - 1 {
+        triangles.push([corners[0], corners[j], corners[j + 1]]);
+        if let Some(texture) = texture {
+            for c in [0, j, j + 1] {
+                corner_uvs.push(Point2::new(texture[2 * c], texture[2 * c + 1]));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The mesh with its texture coordinates: per corner (`corner_uvs`, three per triangle) when
+/// the faces carry them, else per vertex when the vertices do, else none.
+fn textured_mesh(
+    positions: Vec<Point3<Real>>,
+    triangles: Vec<[u32; 3]>,
+    vertex_uvs: Vec<Point2<Real>>,
+    corner_uvs: Option<Vec<Point2<Real>>>,
+) -> Result<TriangleMesh, MeshProblem> {
+    let mesh = TriangleMesh::new(positions, triangles)?;
+    if let Some(corner_uvs) = corner_uvs {
+        let n = u32::try_from(corner_uvs.len())
+            .map_err(|_| MeshProblem::TooLarge(format!("{} texture coordinates", corner_uvs.len())))?;
+        let texture_triangles = (0..n / 3).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+        mesh.with_texture(TextureCoordinates {
+            uvs: corner_uvs,
+            triangles: texture_triangles,
+        })
+    } else if !vertex_uvs.is_empty() {
+        let triangles = mesh.triangles().to_vec();
+        mesh.with_texture(TextureCoordinates {
+            uvs: vertex_uvs,
+            triangles,
+        })
+    } else {
+        Ok(mesh)
+    }
+}
+
 /// Parses a PLY file (ASCII or binary). Vertices keep their order; polygons are
 /// fan-triangulated.
 ///
@@ -268,41 +376,15 @@ pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
     for element in &elements {
         let is_vertex = element.name == "vertex";
         let is_face = element.name == "face";
-        let find = |names: &[&str]| {
-            element
-                .properties
-                .iter()
-                .position(|p| matches!(p, Property::Scalar { .. }) && names.contains(&p.name()))
-        };
         let (xyz, uv) = if is_vertex {
             has_vertices = true;
-            let axis = |name: &str| {
-                find(&[name]).ok_or_else(|| syntax("header", format!("the vertex element has no `{name}`")))
-            };
-            let xyz = [axis("x")?, axis("y")?, axis("z")?];
-            let uv = [
-                ["u", "v"],
-                ["s", "t"],
-                ["texture_u", "texture_v"],
-                ["texture_s", "texture_t"],
-            ]
-            .iter()
-            .find_map(|[a, b]| Some([find(&[a])?, find(&[b])?]));
-            (xyz, uv)
+            vertex_columns(element)?
         } else {
             ([0; 3], None)
         };
-        let list = |names: &[&str]| {
-            element
-                .properties
-                .iter()
-                .position(|p| matches!(p, Property::List { .. }) && names.contains(&p.name()))
-        };
         let (indices, texcoord) = if is_face {
             has_faces = true;
-            let indices = list(&["vertex_indices", "vertex_index"])
-                .ok_or_else(|| syntax("header", "the face element has no `vertex_indices` list"))?;
-            (indices, list(&["texcoord"]))
+            face_columns(element)?
         } else {
             (0, None)
         };
@@ -364,40 +446,14 @@ pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
                 }
             }
             if is_face {
-                if face.len() < 3 {
-                    return Err(syntax(location(), "a face needs at least three corners"));
-                }
-                let mut corners = Vec::with_capacity(face.len());
-                for &index in &face {
-                    if index < 0.0 || index.fract() != 0.0 || index >= positions.len() as f64 {
-                        return Err(MeshProblem::IndexOutOfRange {
-                            location: location(),
-                            index: index as i64,
-                            count: positions.len(),
-                            what: "vertices",
-                        });
-                    }
-                    corners.push(index as u32);
-                }
-                let textured = texcoord.is_some();
-                if textured && corner_texture.len() != 2 * face.len() {
-                    return Err(syntax(
-                        location(),
-                        format!(
-                            "{} texcoord values for {} corners",
-                            corner_texture.len(),
-                            face.len()
-                        ),
-                    ));
-                }
-                for j in 1..corners.len() - 1 {
-                    triangles.push([corners[0], corners[j], corners[j + 1]]);
-                    if textured {
-                        for c in [0, j, j + 1] {
-                            corner_uvs.push(Point2::new(corner_texture[2 * c], corner_texture[2 * c + 1]));
-                        }
-                    }
-                }
+                let textured = texcoord.map(|_| corner_texture.as_slice());
+                push_face(
+                    &face,
+                    textured,
+                    positions.len(),
+                    &location,
+                    (&mut triangles, &mut corner_uvs),
+                )?;
             }
         }
     }
@@ -413,24 +469,12 @@ pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
     let corner_textured = elements
         .iter()
         .any(|e| e.name == "face" && e.properties.iter().any(|p| p.name() == "texcoord"));
-    let mesh = TriangleMesh::new(positions, triangles)?;
-    if corner_textured {
-        let n = u32::try_from(corner_uvs.len())
-            .map_err(|_| MeshProblem::TooLarge(format!("{} texture coordinates", corner_uvs.len())))?;
-        let texture_triangles = (0..n / 3).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
-        mesh.with_texture(TextureCoordinates {
-            uvs: corner_uvs,
-            triangles: texture_triangles,
-        })
-    } else if !vertex_uvs.is_empty() {
-        let triangles = mesh.triangles().to_vec();
-        mesh.with_texture(TextureCoordinates {
-            uvs: vertex_uvs,
-            triangles,
-        })
-    } else {
-        Ok(mesh)
-    }
+    textured_mesh(
+        positions,
+        triangles,
+        vertex_uvs,
+        corner_textured.then_some(corner_uvs),
+    )
 }
 
 /// Whether a texture is per vertex (one coordinate per vertex, indexed like the triangles).
