@@ -40,6 +40,7 @@ macro_rules! with_widths {
 mod band;
 mod basis;
 mod curvature;
+mod curve;
 mod fit;
 mod inversion;
 mod knots;
@@ -50,6 +51,7 @@ mod surface;
 
 pub use basis::{basis_derivatives, basis_functions};
 pub use curvature::Curvature;
+pub use curve::BSplineCurve;
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};
@@ -157,6 +159,20 @@ pub enum BSplineError {
         rows: usize,
         /// Grid columns.
         cols: usize,
+    },
+    /// A curve's control points do not match its knot vector.
+    #[error("{got} control points given for a curve whose knots need {expected}")]
+    CurvePointCount {
+        /// Points given.
+        got: usize,
+        /// Points the knot vector needs.
+        expected: usize,
+    },
+    /// A curve's control point has a NaN or infinite coordinate.
+    #[error("control point {index} is not finite")]
+    NonFiniteCurvePoint {
+        /// Its index.
+        index: usize,
     },
     /// A control point has a NaN or infinite coordinate.
     #[error("control point ({row}, {col}) is not finite")]

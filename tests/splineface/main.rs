@@ -8,6 +8,7 @@ mod bad_inputs;
 mod batch;
 mod bspline_basis;
 mod bspline_curvature;
+mod bspline_curve;
 mod bspline_fit;
 mod bspline_inversion;
 mod bspline_knots;
