@@ -95,4 +95,33 @@ impl BSplineSurface {
             directions,
         }))
     }
+
+    /// [`BSplineSurface::curvature`] over a grid of parameters, `us.len() × vs.len()` values,
+    /// `u`-major (`index = i·vs.len() + j` for `(us[i], vs[j])`), computed in parallel.
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::eval`], for the first parameter outside the domain.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// // A plane: no curvature anywhere.
+    /// let k = KnotVector::clamped_uniform(1, 2, 0.0, 1.0)?;
+    /// let grid = vec![Point3::new(0.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0), Point3::new(1.0, 0.0, 0.0), Point3::new(1.0, 1.0, 0.0)];
+    /// let plane = BSplineSurface::new(k.clone(), k, 2, 2, grid)?;
+    /// let map = plane.curvature_grid(&[0.0, 0.5, 1.0], &[0.25, 0.75])?;
+    /// assert_eq!(map.len(), 6);
+    /// assert!(map.iter().all(|c| c.as_ref().is_some_and(|c| c.mean == 0.0 && c.gaussian == 0.0)));
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn curvature_grid(&self, us: &[Real], vs: &[Real]) -> Result<Vec<Option<Curvature>>, BSplineError> {
+        use rayon::prelude::*;
+        (0..us.len() * vs.len())
+            .into_par_iter()
+            .map(|k| self.curvature(us[k / vs.len()], vs[k % vs.len()]))
+            .collect()
+    }
 }

@@ -272,6 +272,9 @@ pub struct StageTime {
 
 type Files = Vec<(PathBuf, Vec<u8>)>;
 
+/// Samples along each side of `curvature.png`.
+pub const CURVATURE_SIDE: usize = 256;
+
 impl Reconstruction {
     /// Every output file, as `(path relative to the output directory, bytes)`: see the module
     /// documentation.
@@ -284,6 +287,7 @@ impl Reconstruction {
         let mut files = self.mesh_files(&mesh)?;
         files.extend(self.surface_files());
         files.extend(self.depth_files(&mesh)?);
+        files.push(("curvature.png".into(), self.curvature_png()?));
         // Where the photos agree, before and after the refinement.
         if let Some(refinement) = &self.refinement {
             files.push((
@@ -397,6 +401,50 @@ impl Reconstruction {
                 shaded_png(&map).map_err(encode_error("preview.png"))?,
             ),
         ])
+    }
+
+    /// `curvature.png`: the surface's curvedness `√((κ₁² + κ₂²)/2)` (1/mm, or per canonical
+    /// unit) over its `(u, v)` square, [`CURVATURE_SIDE`] samples a side (`v` up), dark outside
+    /// the face region, on a viridis scale up to its 99th percentile over the face. Curvedness
+    /// is how sharply the surface bends whatever the direction: where a smooth face is
+    /// ridged, pinched or bumpy shows at a glance.
+    fn curvature_png(&self) -> Result<Vec<u8>, PipelineError> {
+        let units = self.options.units;
+        let surface = self.face.surface().transformed(&units.transform());
+        let side = CURVATURE_SIDE;
+        let along = |(lo, hi): (Real, Real)| -> Vec<Real> {
+            (0..side)
+                .map(|i| (lo + (hi - lo) * (i as Real + 0.5) / side as Real).clamp(lo, hi))
+                .collect()
+        };
+        let (us, vs) = (along(surface.domain_u()), along(surface.domain_v()));
+        let grid = surface
+            .curvature_grid(&us, &vs)
+            .map_err(encode_error("curvature.png"))?;
+        let clip = self.face.clip();
+        let mut values = vec![Real::NAN; side * side];
+        for (i, &u) in us.iter().enumerate() {
+            for (j, &v) in vs.iter().enumerate() {
+                if let Some(c) = &grid[i * side + j]
+                    && crate::geometry::polygon_contains(clip, nalgebra::Point2::new(u, v))
+                {
+                    let (k1, k2) = c.principal;
+                    values[j * side + i] = ((k1 * k1 + k2 * k2) / 2.0).sqrt();
+                }
+            }
+        }
+        let mut inside: Vec<Real> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        inside.sort_by(Real::total_cmp);
+        let top = inside
+            .get(((inside.len().max(1) - 1) as Real * 0.99) as usize)
+            .copied()
+            .filter(|t| *t > 0.0)
+            .unwrap_or(1.0);
+        let unit = match units {
+            Units::Millimetres { .. } => "1/mm",
+            Units::Canonical => "1/unit",
+        };
+        crate::render::heatmap_png(&values, side, side, top, unit).map_err(encode_error("curvature.png"))
     }
 
     /// `structure.json`'s content.

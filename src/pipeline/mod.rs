@@ -20,7 +20,8 @@
 //!    and with images `face.png`, the atlas, `texture-confidence.png` and `turntable.png`),
 //!    `face.glb`, `face.ply` (every mesh with its surface parameters as texture coordinates),
 //!    `surface.json`, `surface.step`,
-//!    `depth.exr`, `depth.png`, `structure.json`, `report.json`, `aligned/*.png` after RASL, and
+//!    `depth.exr`, `depth.png`, `preview.png`, `curvature.png` ([`files::CURVATURE_SIDE`]),
+//!    `structure.json`, `report.json`, `aligned/*.png` after RASL, and
 //!    `consistency.png` after the refinement. Each photo's camera and the face's points seen by
 //!    it are kept ([`Reconstruction::photo_fits`]); [`PhotoSet::files`] draws them on the photos
 //!    and adds the page ([`crate::report`]: `overlays/`, `landmarks/`, `report.html`).

@@ -458,11 +458,16 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
         ),
         (
             "depth",
-            "Depth and consistency",
+            "Depth, curvature and consistency",
             &[
                 (
                     "depth.png",
                     "the depth map (depth.png, 16-bit; depth.exr holds the floats)",
+                    false,
+                ),
+                (
+                    "curvature.png",
+                    "how sharply the surface bends (curvedness over its (u, v) square)",
                     false,
                 ),
                 (

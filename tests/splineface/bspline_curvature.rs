@@ -111,3 +111,28 @@ fn a_plane_is_flat_and_a_collapsed_edge_has_no_curvature() {
     assert!(s.curvature(0.0, 0.5).unwrap().is_none());
     assert!(s.curvature(1.5, 0.5).is_err());
 }
+
+#[test]
+fn a_curvature_grid_is_the_curvature_at_each_parameter() {
+    let mut rng = Lcg(11);
+    let k = KnotVector::clamped_uniform(3, 7, 0.0, 2.0).unwrap();
+    let grid = (0..49)
+        .map(|i| Point3::new((i / 7) as Real, (i % 7) as Real, rng.uniform(-1.0, 1.0)))
+        .collect();
+    let surface = BSplineSurface::new(k.clone(), k, 7, 7, grid).unwrap();
+    let (us, vs) = ([0.0, 0.3, 1.1, 2.0], [0.5, 1.7, 1.9]);
+    let map = surface.curvature_grid(&us, &vs).unwrap();
+    assert_eq!(map.len(), 12);
+    for (i, &u) in us.iter().enumerate() {
+        for (j, &v) in vs.iter().enumerate() {
+            let one = surface.curvature(u, v).unwrap().unwrap();
+            let at = map[i * vs.len() + j].as_ref().unwrap();
+            assert_eq!(
+                (at.mean, at.gaussian, at.principal),
+                (one.mean, one.gaussian, one.principal)
+            );
+        }
+    }
+    assert!(surface.curvature_grid(&[0.5], &[2.5]).is_err());
+    assert!(surface.curvature_grid(&[], &vs).unwrap().is_empty());
+}

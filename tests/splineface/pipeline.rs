@@ -9,7 +9,7 @@ use splineface::demo::{SceneOptions, scene, subject};
 use splineface::pipeline::{PipelineOptions, reconstruct};
 use splineface::reference::ReferenceFace;
 
-const OUTPUTS: [&str; 11] = [
+const OUTPUTS: [&str; 12] = [
     "face.obj",
     "face.glb",
     "face.ply",
@@ -18,6 +18,7 @@ const OUTPUTS: [&str; 11] = [
     "depth.exr",
     "depth.png",
     "preview.png",
+    "curvature.png",
     "structure.json",
     "report.json",
     "aligned/mean-after.png",
@@ -160,6 +161,22 @@ fn the_library_pipeline_beats_the_mean_face() {
         Some(splineface::pipeline::files::TextureReport::Made { .. })
     ));
     assert_eq!(result.structure_file().photos.len(), 8);
+    // The curvature map: the (u, v) square and its colour bar, the face region coloured.
+    let png = &files
+        .iter()
+        .find(|(p, _)| p == Path::new("curvature.png"))
+        .unwrap()
+        .1;
+    let map = image::load_from_memory(png).unwrap().to_rgb8();
+    assert_eq!(map.height(), splineface::pipeline::files::CURVATURE_SIDE as u32);
+    assert!(map.width() > map.height(), "the colour bar beside the map");
+    let centre = map.get_pixel(128, 128);
+    assert_ne!(centre.0, [30, 30, 30], "the face's centre is coloured");
+    assert_eq!(
+        map.get_pixel(1, 1).0,
+        [30, 30, 30],
+        "a corner of the square is outside the face"
+    );
 }
 
 #[test]
