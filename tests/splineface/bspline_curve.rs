@@ -7,20 +7,11 @@ use proptest::prelude::*;
 use splineface::Real;
 use splineface::bspline::{BSplineCurve, BSplineError, KnotVector};
 
-use super::common::{Lcg, in_domain, knot_vector, naive_basis, surface};
+use super::common::{in_domain, knot_vector, naive_basis, random_points, surface};
 
 fn random_curve(knots: KnotVector, seed: u64) -> BSplineCurve {
-    let mut rng = Lcg(seed);
-    let points = (0..knots.num_control_points())
-        .map(|_| {
-            Point3::new(
-                rng.uniform(-10.0, 10.0),
-                rng.uniform(-10.0, 10.0),
-                rng.uniform(-10.0, 10.0),
-            )
-        })
-        .collect();
-    BSplineCurve::new(knots, points).unwrap()
+    let count = knots.num_control_points();
+    BSplineCurve::new(knots, random_points(count, seed)).unwrap()
 }
 
 /// The largest distance between two curves over 33 parameters of `[lo, hi]`.

@@ -92,11 +92,10 @@ pub fn in_domain(knots: &KnotVector, t: Real) -> Real {
     (a + (b - a) * t).clamp(a, b)
 }
 
-/// A random surface on the given knots with control points in `[-10, 10]³`.
-pub fn random_surface(ku: KnotVector, kv: KnotVector, seed: u64) -> BSplineSurface {
-    let (rows, cols) = (ku.num_control_points(), kv.num_control_points());
+/// `count` random control points in `[-10, 10]³`.
+pub fn random_points(count: usize, seed: u64) -> Vec<Point3<Real>> {
     let mut rng = Lcg(seed);
-    let grid = (0..rows * cols)
+    (0..count)
         .map(|_| {
             Point3::new(
                 rng.uniform(-10.0, 10.0),
@@ -104,8 +103,13 @@ pub fn random_surface(ku: KnotVector, kv: KnotVector, seed: u64) -> BSplineSurfa
                 rng.uniform(-10.0, 10.0),
             )
         })
-        .collect();
-    BSplineSurface::new(ku, kv, rows, cols, grid).unwrap()
+        .collect()
+}
+
+/// A random surface on the given knots with control points in `[-10, 10]³`.
+pub fn random_surface(ku: KnotVector, kv: KnotVector, seed: u64) -> BSplineSurface {
+    let (rows, cols) = (ku.num_control_points(), kv.num_control_points());
+    BSplineSurface::new(ku, kv, rows, cols, random_points(rows * cols, seed)).unwrap()
 }
 
 /// Random surfaces of any supported shape.
