@@ -115,10 +115,25 @@ impl BSplineCurve {
         Ok(Self::from_column(self.column.refine_knots(Direction::U, values)?))
     }
 
-    /// The same curve with the knot `value` inserted `times` times (A5.1).
+    /// The same curve with the knot `value` inserted `times` times (A5.1): `times` more control
+    /// points, the same points in space.
     ///
     /// # Errors
     /// As [`BSplineSurface::refine_knots`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let points = (0..5).map(|i| Point3::new(i as f64, (i * i) as f64, 0.0)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// let finer = curve.insert_knot(0.4, 2)?;
+    /// assert_eq!(finer.control_points().len(), 7);
+    /// assert!((finer.eval(0.7)? - curve.eval(0.7)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn insert_knot(&self, value: Real, times: usize) -> Result<Self, BSplineError> {
         Ok(Self::from_column(self.column.insert_knot(
             Direction::U,
@@ -131,6 +146,19 @@ impl BSplineCurve {
     ///
     /// # Errors
     /// As [`BSplineSurface::elevate_degree`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// // A straight segment of degree 1, raised to a cubic: three new points on the same line.
+    /// let line = BSplineCurve::new(KnotVector::clamped_uniform(1, 2, 0.0, 1.0)?, vec![Point3::origin(), Point3::new(3.0, 0.0, 0.0)])?;
+    /// let cubic = line.elevate_degree(2)?;
+    /// assert_eq!((cubic.degree(), cubic.control_points().len()), (3, 4));
+    /// assert!((cubic.control_points()[1].x - 1.0).abs() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn elevate_degree(&self, by: usize) -> Result<Self, BSplineError> {
         Ok(Self::from_column(self.column.elevate_degree(Direction::U, by)?))
     }
@@ -143,10 +171,25 @@ impl BSplineCurve {
         Ok(Self::from_column(self.column.restricted(Direction::U, lo, hi)?))
     }
 
-    /// The curve cut in two at `at`, inside the domain.
+    /// The curve cut in two at `at`, inside the domain: the parts over `[start, at]` and
+    /// `[at, end]`, each clamped.
     ///
     /// # Errors
     /// As [`BSplineSurface::split`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(2, 4, 0.0, 1.0)?;
+    /// let points = (0..4).map(|i| Point3::new(i as f64, (i % 2) as f64, 0.0)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// let (left, right) = curve.split(0.3)?;
+    /// assert_eq!((left.domain(), right.domain()), ((0.0, 0.3), (0.3, 1.0)));
+    /// assert!((left.eval(0.3)? - right.eval(0.3)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn split(&self, at: Real) -> Result<(Self, Self), BSplineError> {
         let (a, b) = self.column.split(Direction::U, at)?;
         Ok((Self::from_column(a), Self::from_column(b)))
