@@ -659,46 +659,7 @@ impl FaceSpace {
         point_weights: &[Real; POINT_COUNT],
         options: &PhotoFitOptions,
     ) -> Result<PhotoSpaceFit, FaceError> {
-        let bad = |name: &'static str, value: String, expected: &'static str| {
-            Err(FaceError::Option {
-                name,
-                value,
-                expected,
-            })
-        };
-        if views.is_empty() {
-            return bad("views", "none".into(), "at least one photo");
-        }
-        if let Some(i) = views
-            .iter()
-            .position(|v| v.len() != POINT_COUNT || v.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())))
-        {
-            return bad("view", i.to_string(), "40 finite points");
-        }
-        let noise = options.noise;
-        if !(noise > 0.0 && noise.is_finite()) {
-            return bad("noise", noise.to_string(), "positive and finite");
-        }
-        if let Some(tau) = options.expression_sigma
-            && !(tau > 0.0 && tau.is_finite())
-        {
-            return bad("expression deviation", tau.to_string(), "positive and finite");
-        }
-        let total: Real = point_weights.iter().sum();
-        if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || total <= 0.0 {
-            return bad(
-                "point weight",
-                format!("{point_weights:?}"),
-                "finite, non-negative, not all zero",
-            );
-        }
-        let centroid = |points: &[Point2<Real>]| {
-            points
-                .iter()
-                .zip(point_weights)
-                .fold(Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
-                / total
-        };
+        let (noise, total) = check_photo_fit(views, point_weights, options)?;
         let expression_modes: &[Vec<Vector3<Real>>] = match options.expression_sigma {
             Some(_) => &self.expressions.structure,
             None => &[],
@@ -711,86 +672,9 @@ impl FaceSpace {
             options.expression_sigma.unwrap_or(1.0),
         );
 
-        // The start: every photo's pose for the mean face (closed form, then refined), neutral.
-        let mean = &self.structure.base;
-        let mean_centre = mean
-            .iter()
-            .zip(point_weights)
-            .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
-            / total;
-        let centred_mean: Vec<Point3<Real>> = mean.iter().map(|p| p - mean_centre).collect();
-        let mut photos = Vec::with_capacity(views.len());
-        for view in views {
-            let centre = centroid(view);
-            let points: Vec<Vector2<Real>> = view.iter().map(|p| p.coords - centre).collect();
-            let flat: Vec<Point2<Real>> = points.iter().map(|p| Point2::from(*p)).collect();
-            let start = crate::depth::closed_form_pose(&flat, &centred_mean, point_weights).ok_or(
-                FaceError::Degenerate("seen in a photo whose points do not fix a pose"),
-            )?;
-            let pose = crate::depth::refine_pose(start, &flat, &centred_mean, point_weights);
-            // The structure's origin sits where the mean face's centre projects minus its image.
-            let seen = pose.rotation * mean_centre;
-            photos.push(PhotoUnknowns {
-                rotation: pose.rotation,
-                relative_scale: 1.0,
-                shift: -Vector2::new(seen.x, seen.y),
-                expression: vec![0.0; expression_modes.len()],
-                targets: points.iter().map(|p| p / pose.scale).collect(),
-                centre,
-                unit: pose.scale,
-            });
-        }
+        let mut photos = self.starting_photos(views, point_weights, total, expression_modes.len())?;
         let mut weights = vec![0.0; self.mode_count()];
-        let mut cost = problem.cost(&weights, &photos);
-        let mut damping = 1e-4;
-        let mut iterations = 0;
-        // Levenberg–Marquardt with a backtracking search along each direction: the clamping of
-        // the expression weights makes a full step overshoot where a mode reaches a bound, and
-        // halving the step is far cheaper than a new direction.
-        for _ in 0..100 {
-            iterations += 1;
-            let Some(direction) = problem.step(&weights, &photos, damping) else {
-                damping *= 10.0;
-                if damping > 1e8 {
-                    break;
-                }
-                continue;
-            };
-            let mut accepted = None;
-            let mut alpha = 1.0;
-            for _ in 0..6 {
-                let (next_weights, next_photos) =
-                    JointProblem::moved_along(&weights, &photos, &direction, alpha);
-                let next_cost = problem.cost(&next_weights, &next_photos);
-                if next_cost.is_finite() && next_cost <= cost {
-                    accepted = Some((next_weights, next_photos, next_cost));
-                    break;
-                }
-                alpha /= 2.0;
-            }
-            match accepted {
-                Some((next_weights, next_photos, next_cost)) => {
-                    let decrease = cost - next_cost;
-                    weights = next_weights;
-                    photos = next_photos;
-                    cost = next_cost;
-                    if alpha == 1.0 {
-                        damping = (damping / 10.0).max(1e-12);
-                    }
-                    // A relative decrease below 10⁻⁸ moves the weights in their sixth digit
-                    // (measured on the bench's 35 photos); 10⁻¹⁰ took a tenth longer.
-                    if decrease <= 1e-8 * cost.max(Real::MIN_POSITIVE) {
-                        break;
-                    }
-                }
-                None => {
-                    damping *= 10.0;
-                    if damping > 1e8 {
-                        break;
-                    }
-                }
-            }
-        }
+        let iterations = problem.minimise(&mut weights, &mut photos);
         // Weights outside the prior's plausible range are held at its edge, and named.
         let mut held = Vec::new();
         for (k, (w, sigma)) in weights.iter_mut().zip(&self.sigma).enumerate() {
@@ -837,6 +721,156 @@ impl FaceSpace {
             iterations,
             held,
         })
+    }
+}
+
+/// [`FaceSpace::fit_photos`]' checks: some views of 40 finite points, a positive noise and
+/// expression deviation, finite non-negative point weights not all zero. Returns the noise
+/// and the weights' sum.
+fn check_photo_fit(
+    views: &[Vec<Point2<Real>>],
+    point_weights: &[Real; POINT_COUNT],
+    options: &PhotoFitOptions,
+) -> Result<(Real, Real), FaceError> {
+    let bad = |name: &'static str, value: String, expected: &'static str| {
+        Err(FaceError::Option {
+            name,
+            value,
+            expected,
+        })
+    };
+    if views.is_empty() {
+        return bad("views", "none".into(), "at least one photo");
+    }
+    if let Some(i) = views
+        .iter()
+        .position(|v| v.len() != POINT_COUNT || v.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())))
+    {
+        return bad("view", i.to_string(), "40 finite points");
+    }
+    let noise = options.noise;
+    if !(noise > 0.0 && noise.is_finite()) {
+        return bad("noise", noise.to_string(), "positive and finite");
+    }
+    if let Some(tau) = options.expression_sigma
+        && !(tau > 0.0 && tau.is_finite())
+    {
+        return bad("expression deviation", tau.to_string(), "positive and finite");
+    }
+    let total: Real = point_weights.iter().sum();
+    if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || total <= 0.0 {
+        return bad(
+            "point weight",
+            format!("{point_weights:?}"),
+            "finite, non-negative, not all zero",
+        );
+    }
+    Ok((noise, total))
+}
+
+impl FaceSpace {
+    /// [`FaceSpace::fit_photos`]' start: every photo's pose for the mean face (closed form, then
+    /// refined), neutral (`expressions` zero weights).
+    fn starting_photos(
+        &self,
+        views: &[Vec<Point2<Real>>],
+        point_weights: &[Real; POINT_COUNT],
+        total: Real,
+        expressions: usize,
+    ) -> Result<Vec<PhotoUnknowns>, FaceError> {
+        let centroid = |points: &[Point2<Real>]| {
+            points
+                .iter()
+                .zip(point_weights)
+                .fold(Vector2::zeros(), |acc, (p, w)| acc + p.coords * *w)
+                / total
+        };
+        let mean = &self.structure.base;
+        let mean_centre = mean
+            .iter()
+            .zip(point_weights)
+            .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
+            / total;
+        let centred_mean: Vec<Point3<Real>> = mean.iter().map(|p| p - mean_centre).collect();
+        let mut photos = Vec::with_capacity(views.len());
+        for view in views {
+            let centre = centroid(view);
+            let points: Vec<Vector2<Real>> = view.iter().map(|p| p.coords - centre).collect();
+            let flat: Vec<Point2<Real>> = points.iter().map(|p| Point2::from(*p)).collect();
+            let start = crate::depth::closed_form_pose(&flat, &centred_mean, point_weights).ok_or(
+                FaceError::Degenerate("seen in a photo whose points do not fix a pose"),
+            )?;
+            let pose = crate::depth::refine_pose(start, &flat, &centred_mean, point_weights);
+            // The structure's origin sits where the mean face's centre projects minus its image.
+            let seen = pose.rotation * mean_centre;
+            photos.push(PhotoUnknowns {
+                rotation: pose.rotation,
+                relative_scale: 1.0,
+                shift: -Vector2::new(seen.x, seen.y),
+                expression: vec![0.0; expressions],
+                targets: points.iter().map(|p| p / pose.scale).collect(),
+                centre,
+                unit: pose.scale,
+            });
+        }
+        Ok(photos)
+    }
+}
+
+impl JointProblem<'_> {
+    /// Levenberg–Marquardt from `weights` and `photos` (moved in place) with a backtracking
+    /// search along each direction: the clamping of the expression weights makes a full step
+    /// overshoot where a mode reaches a bound, and halving the step is far cheaper than a new
+    /// direction. Returns the iterations run.
+    fn minimise(&self, weights: &mut Vec<Real>, photos: &mut Vec<PhotoUnknowns>) -> usize {
+        let mut cost = self.cost(weights, photos);
+        let mut damping: Real = 1e-4;
+        let mut iterations = 0;
+        for _ in 0..100 {
+            iterations += 1;
+            let Some(direction) = self.step(weights, photos, damping) else {
+                damping *= 10.0;
+                if damping > 1e8 {
+                    break;
+                }
+                continue;
+            };
+            let mut accepted = None;
+            let mut alpha = 1.0;
+            for _ in 0..6 {
+                let (next_weights, next_photos) =
+                    JointProblem::moved_along(weights, photos, &direction, alpha);
+                let next_cost = self.cost(&next_weights, &next_photos);
+                if next_cost.is_finite() && next_cost <= cost {
+                    accepted = Some((next_weights, next_photos, next_cost));
+                    break;
+                }
+                alpha /= 2.0;
+            }
+            match accepted {
+                Some((next_weights, next_photos, next_cost)) => {
+                    let decrease = cost - next_cost;
+                    *weights = next_weights;
+                    *photos = next_photos;
+                    cost = next_cost;
+                    if alpha == 1.0 {
+                        damping = (damping / 10.0).max(1e-12);
+                    }
+                    // A relative decrease below 10⁻⁸ moves the weights in their sixth digit
+                    // (measured on the bench's 35 photos); 10⁻¹⁰ took a tenth longer.
+                    if decrease <= 1e-8 * cost.max(Real::MIN_POSITIVE) {
+                        break;
+                    }
+                }
+                None => {
+                    damping *= 10.0;
+                    if damping > 1e8 {
+                        break;
+                    }
+                }
+            }
+        }
+        iterations
     }
 }
 
