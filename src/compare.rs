@@ -671,22 +671,9 @@ pub fn compare(
     structures: Option<Structures<'_>>,
     options: &CompareOptions,
 ) -> Result<Comparison, CompareError> {
-    if !(16..=crate::render::MAX_SIDE).contains(&options.size) {
-        return Err(CompareError::Option {
-            message: format!(
-                "size {} must be between 16 and {}",
-                options.size,
-                crate::render::MAX_SIDE
-            ),
-        });
-    }
-    if let Some(max) = options.heatmap_max
-        && !(max > 0.0 && max.is_finite())
-    {
-        return Err(CompareError::Option {
-            message: format!("heatmap maximum {max} must be positive"),
-        });
-    }
+    options.validate().map_err(|e| CompareError::Option {
+        message: e.to_string(),
+    })?;
     let indexed = ClosestPoints::new(truth);
     let Placement {
         map: alignment_map,

@@ -89,32 +89,31 @@ impl SceneOptions {
     /// Checks the options ([`scene`] does too).
     ///
     /// # Errors
-    /// [`DemoError::Setting`] for no photos or more than 200, a negative or non-finite noise
+    /// A [`SettingError`] for no photos or more than 200, a negative or non-finite noise
     /// (shown in percent, as the command line and the Python package take it), or a side
     /// outside 64 to 4096 pixels.
-    pub fn validate(&self) -> Result<(), DemoError> {
-        let options = self;
-        if options.photos == 0 || options.photos > 200 {
-            return Err(
-                SettingError::new("photos", options.photos.to_string(), "between 1 and 200, please").into(),
-            );
+    pub fn validate(&self) -> Result<(), SettingError> {
+        if self.photos == 0 || self.photos > 200 {
+            return Err(SettingError::new(
+                "photos",
+                self.photos.to_string(),
+                "between 1 and 200, please",
+            ));
         }
-        if !(options.noise >= 0.0 && options.noise.is_finite()) {
+        if !(self.noise >= 0.0 && self.noise.is_finite()) {
             return Err(SettingError::new(
                 "noise",
-                (100.0 * options.noise).to_string(),
+                (100.0 * self.noise).to_string(),
                 "must be a finite percentage, 0 or more",
-            )
-            .into());
+            ));
         }
-        let (width, height) = options.size;
+        let (width, height) = self.size;
         if width < 64 || height < 64 || width > 4096 || height > 4096 {
             return Err(SettingError::new(
                 "size",
                 format!("{width}x{height}"),
                 "each side must be between 64 and 4096",
-            )
-            .into());
+            ));
         }
         Ok(())
     }
@@ -143,7 +142,7 @@ pub struct Scene {
 /// ([`ReferenceFace::photo_structure`]), the same definitions the pipeline deforms from.
 ///
 /// # Errors
-/// As [`SceneOptions::validate`].
+/// [`DemoError::Setting`] as [`SceneOptions::validate`].
 pub fn scene(options: &SceneOptions) -> Result<Scene, DemoError> {
     options.validate()?;
     let (width, height) = options.size;

@@ -268,10 +268,7 @@ fn an_output_file_is_checked_before_any_work() {
 #[test]
 fn the_demos_settings_are_named_in_the_front_ends_units() {
     use splineface::demo::{DemoError, SceneOptions};
-    let message = |options: SceneOptions| match options.validate() {
-        Err(DemoError::Setting(e)) => e.flag_message(),
-        other => panic!("{other:?}"),
-    };
+    let message = |options: SceneOptions| options.validate().unwrap_err().flag_message();
     let base = SceneOptions::default();
     assert!(base.validate().is_ok());
     assert_eq!(

@@ -76,7 +76,7 @@ fn render_depth(a: &RenderDepthArgs) -> Result<()> {
     let format = DepthFormat::from_path(out)
         .with_context(|| format!("{}: the depth map must be .exr or .png", out.display()))?;
     if let Some(p) = preview
-        && !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png"))
+        && DepthFormat::from_path(p) != Some(DepthFormat::Png)
     {
         bail!("{}: the preview must be .png", p.display());
     }
@@ -352,13 +352,7 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
     let options = output.options()?;
     check_output_dir(out)?;
     let model_start = std::time::Instant::now();
-    let predictor = match landmark_model {
-        Some(path) => {
-            progress(&format!("reading the landmark model {}", path.display()));
-            Some(splineface::landmarker::ShapePredictor::read(path)?)
-        }
-        None => None,
-    };
+    let predictor = landmark_model.map(read_model).transpose()?;
     let model_seconds = predictor.is_some().then(|| model_start.elapsed().as_secs_f64());
     let reference = read_reference(reference_path)?;
     let photo_paths = photo_list(photos, photo_dir)?;
@@ -466,6 +460,13 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
     Ok(())
 }
 
+/// The landmark model at `path` (dlib's `.dat` or its compact form), announced on the
+/// progress display.
+fn read_model(path: &Path) -> Result<splineface::landmarker::ShapePredictor> {
+    progress(&format!("reading the landmark model {}", path.display()));
+    Ok(splineface::landmarker::ShapePredictor::read(path)?)
+}
+
 /// A reference face file ([`ReferenceFace::read`]), or the embedded one when `path` is `None`.
 fn read_reference(path: Option<&Path>) -> Result<ReferenceFace> {
     match path {
@@ -487,13 +488,7 @@ fn batch_command(a: &BatchArgs) -> Result<()> {
     let subjects = subjects(root)?;
     check_output(root, out)?;
     let reference = read_reference(reference_path)?;
-    let predictor = match landmark_model {
-        Some(path) => {
-            progress(&format!("reading the landmark model {}", path.display()));
-            Some(splineface::landmarker::ShapePredictor::read(path)?)
-        }
-        None => None,
-    };
+    let predictor = landmark_model.map(read_model).transpose()?;
     let job = BatchJob {
         model: predictor.as_ref(),
         model_identity: file_identity(landmark_model)?,
@@ -581,9 +576,9 @@ fn demo_command(a: &DemoArgs) -> Result<()> {
         ..splineface::demo::SceneOptions::default()
     };
     // The settings checked before any work: `scene` checks them again.
-    if let Err(splineface::demo::DemoError::Setting(e)) = scene_options.validate() {
-        bail!(e.flag_message());
-    }
+    scene_options
+        .validate()
+        .map_err(|e| anyhow::anyhow!(e.flag_message()))?;
     check_output_dir(out)?;
     let start = std::time::Instant::now();
     progress(&format!(
@@ -715,8 +710,7 @@ fn landmarks_command(a: &LandmarksArgs) -> Result<()> {
         );
     };
     check_output_dir(out)?;
-    progress(&format!("reading the landmark model {}", model_path.display()));
-    let model = splineface::landmarker::ShapePredictor::read(model_path)?;
+    let model = read_model(model_path)?;
     let landmarked = splineface::pipeline::landmark_photos(&paths, &model, json)?;
     write_into(out, &landmarked.files)?;
     println!("{}", out.display());
