@@ -6,12 +6,16 @@
 //! points (the convex hull property) in a bounding-volume tree. A query starts at its nearest
 //! sample and runs a damped Newton iteration on `½|F(u, v) − P|²` (the full Hessian
 //! `FᵤᵀFᵤ + (F − P)·Fᵤᵤ, …`, falling back to Gauss-Newton where that is not positive
-//! definite), each step projected onto the domain with the coordinates held on a bound they
-//! would leave (so that points beyond an edge or a corner find the edge or the corner). It
+//! definite), each step projected onto the start's *piece* with the coordinates held on a
+//! bound they would leave (so that points beyond an edge or a corner find the edge or the
+//! corner). A piece is the domain cut along its creases, the knots of multiplicity ≥ the
+//! degree where the surface is only C⁰: the distance has a kink there, so a minimum on a
+//! crease is found as one on a piece's edge, with the piece's one-sided derivatives. Newton
 //! stops when the step moves the surface point by less than `1e-12` of the surface's size, or
 //! when the residual is perpendicular to the surface to `1e-12` (the book's two zero tests).
 //! Then every other span whose box comes nearer the query than that answer is searched from
-//! its own nearest sample, and the nearest answer is kept: the answer is the global one across
+//! its own nearest sample (kept just inside the span, so that the search stays in the span's
+//! own piece), and the nearest answer is kept: the answer is the global one across
 //! spans, and a local one within a span (a span folded into two basins around the query can
 //! hide the farther-from-the-start one; the property tests, on height fields with slopes up to
 //! about ½, never saw it).
@@ -33,6 +37,10 @@ pub const SAMPLES_PER_SPAN: usize = 3;
 /// The most Newton steps a query takes.
 const MAX_STEPS: usize = 30;
 
+/// How far inside its span (a fraction of the span's width) a span's start is kept from the
+/// span's upper edge (and where an answer on a piece's upper edge is looked up).
+const INSIDE: Real = 1e-9;
+
 /// The closest point of a surface to a query point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClosestPoint {
@@ -47,11 +55,11 @@ pub struct ClosestPoint {
 }
 
 /// The point, first and second derivatives at `(u, v)`: `[F, Fᵤ, F_v, Fᵤᵤ, Fᵤ_v, F_vv]`,
-/// without allocating.
-fn second_order(surface: &BSplineSurface, u: Real, v: Real) -> [Vector3<Real>; 6] {
+/// without allocating; on a piece's upper edge, the piece's own (one-sided) derivatives.
+fn second_order(surface: &BSplineSurface, u: Real, v: Real, piece: &Piece) -> [Vector3<Real>; 6] {
     let (p, q) = (surface.degree_u(), surface.degree_v());
-    let su = surface.knots_u().span_in_domain(u);
-    let sv = surface.knots_v().span_in_domain(v);
+    let su = span_from_within(surface.knots_u(), u, piece.u);
+    let sv = span_from_within(surface.knots_v(), v, piece.v);
     let (du, dv) = (2.min(p), 2.min(q));
     let mut nu = [0.0; 3 * (MAX_DEGREE + 1)];
     let mut nv = [0.0; 3 * (MAX_DEGREE + 1)];
@@ -83,6 +91,52 @@ fn second_order(surface: &BSplineSurface, u: Real, v: Real) -> [Vector3<Real>; 6
         along(1, 1),
         along(0, 2),
     ]
+}
+
+/// The span of `knots` whose polynomial serves `t` in the piece `[lo, hi]`: the usual span,
+/// except on the piece's upper edge `hi` inside the domain, which belongs to the next span
+/// but is reached here from below.
+fn span_from_within(knots: &super::KnotVector, t: Real, (_, hi): (Real, Real)) -> usize {
+    let mut span = knots.span_in_domain(t);
+    if t >= hi && hi < knots.domain().1 {
+        while span > knots.degree() && knots.knots()[span] >= t {
+            span -= 1;
+        }
+    }
+    span
+}
+
+/// A rectangle of the domain between creases (knots of multiplicity ≥ the degree, where the
+/// surface is only C⁰) or the domain's edges, within which Newton runs: the distance has a
+/// kink along a crease, and a minimum on one is found as a minimum on a piece's edge, with
+/// that piece's one-sided derivatives.
+#[derive(Debug, Clone, Copy)]
+struct Piece {
+    u: (Real, Real),
+    v: (Real, Real),
+}
+
+/// The interior knots of `knots` with multiplicity at least the degree, ascending.
+fn creases(knots: &super::KnotVector) -> Vec<Real> {
+    let (t0, t1) = knots.domain();
+    let mut out: Vec<Real> = knots
+        .knots()
+        .iter()
+        .copied()
+        .filter(|&k| k > t0 && k < t1)
+        .filter(|&k| knots.knots().iter().filter(|&&x| x == k).count() >= knots.degree())
+        .collect();
+    out.dedup();
+    out
+}
+
+/// The piece `[lo, hi]` of `(t0, t1)` cut at `creases` that holds `t` (a crease starts the
+/// piece above it).
+fn piece_of(creases: &[Real], (t0, t1): (Real, Real), t: Real) -> (Real, Real) {
+    let k = creases.partition_point(|&c| c <= t);
+    let lo = if k == 0 { t0 } else { creases[k - 1] };
+    let hi = creases.get(k).copied().unwrap_or(t1);
+    (lo, hi)
 }
 
 /// A static k-d tree over points (indices into them, median-split, depth-first order).
@@ -260,6 +314,9 @@ pub struct ClosestPoints<'a> {
     boxes: BoxTree,
     /// Knot spans along `v`.
     spans_v: usize,
+    /// The creases along `u` and `v` (see [`Piece`]).
+    creases_u: Vec<Real>,
+    creases_v: Vec<Real>,
     /// Steps that move the surface point less than this have converged.
     tolerance: Real,
 }
@@ -309,6 +366,8 @@ impl<'a> ClosestPoints<'a> {
             surface,
             boxes,
             spans_v,
+            creases_u: creases(surface.knots_u()),
+            creases_v: creases(surface.knots_v()),
             us,
             vs,
             tree: KdTree::new(points),
@@ -342,6 +401,22 @@ impl<'a> ClosestPoints<'a> {
         (at(&self.us, u), at(&self.vs, v))
     }
 
+    /// The piece that holds `(u, v)`.
+    fn piece(&self, u: Real, v: Real) -> Piece {
+        let s = self.surface;
+        Piece {
+            u: piece_of(&self.creases_u, s.domain_u(), u),
+            v: piece_of(&self.creases_v, s.domain_v(), v),
+        }
+    }
+
+    /// The knot-span pair of an answer found in `piece` (one on the piece's upper edge belongs
+    /// to the span below it, the span of the piece).
+    fn span_of_answer(&self, found: &ClosestPoint, piece: &Piece) -> usize {
+        let within = |t: Real, (lo, hi): (Real, Real)| if t >= hi { hi - INSIDE * (hi - lo) } else { t };
+        self.span_of(self.cell(within(found.u, piece.u), within(found.v, piece.v)))
+    }
+
     /// The knot-span pair of sample cell `(i, j)` (the last samples belong to the last span).
     fn span_of(&self, (i, j): (usize, usize)) -> usize {
         let spans_u = (self.us.len() - 1) / SAMPLES_PER_SPAN;
@@ -355,11 +430,12 @@ impl<'a> ClosestPoints<'a> {
     /// answer has been in), keeping the nearest answer.
     fn search(&self, query: &Point3<Real>) -> ClosestPoint {
         let (cell, start) = self.sample(self.tree.nearest(query));
-        let mut best = self.newton(query, start);
+        let piece = self.piece(start[0], start[1]);
+        let mut best = self.newton(query, start, &piece);
         let mut spans = Vec::new();
         self.boxes
             .within(query, best.distance * best.distance, &mut spans);
-        let mut tried = vec![self.span_of(cell), self.span_of(self.cell(best.u, best.v))];
+        let mut tried = vec![self.span_of(cell), self.span_of_answer(&best, &piece)];
         // In span order, so that the answer does not depend on the tree's traversal.
         let mut spans: Vec<usize> = spans.into_iter().filter(|s| !tried.contains(s)).collect();
         spans.sort_unstable();
@@ -383,9 +459,20 @@ impl<'a> ClosestPoints<'a> {
                 // No point of the span comes nearer than its samples allow.
                 continue;
             }
-            let found = self.newton(query, [self.us[i], self.vs[j]]);
+            // A sample on the span's far edge is also the next span's first, and would put
+            // the search in the next span's piece. So start just inside the span.
+            let inside = |t: Real, grid: &[Real], first: usize| {
+                let (lo, hi) = (grid[first], grid[first + SAMPLES_PER_SPAN]);
+                t.clamp(lo, hi - INSIDE * (hi - lo))
+            };
+            let start = [
+                inside(self.us[i], &self.us, a * SAMPLES_PER_SPAN),
+                inside(self.vs[j], &self.vs, b * SAMPLES_PER_SPAN),
+            ];
+            let piece = self.piece(start[0], start[1]);
+            let found = self.newton(query, start, &piece);
             tried.push(span);
-            tried.push(self.span_of(self.cell(found.u, found.v)));
+            tried.push(self.span_of_answer(&found, &piece));
             if found.distance < best.distance {
                 best = found;
             }
@@ -411,11 +498,12 @@ impl<'a> ClosestPoints<'a> {
             .collect())
     }
 
-    fn newton(&self, query: &Point3<Real>, start: [Real; 2]) -> ClosestPoint {
+    /// Damped Newton from `start` within `piece`, whose edges act as the domain's.
+    fn newton(&self, query: &Point3<Real>, start: [Real; 2], piece: &Piece) -> ClosestPoint {
         let s = self.surface;
-        let ((u0, u1), (v0, v1)) = (s.domain_u(), s.domain_v());
+        let ((u0, u1), (v0, v1)) = (piece.u, piece.v);
         let [mut u, mut v] = start;
-        let mut d = second_order(s, u, v);
+        let mut d = second_order(s, u, v, piece);
         let mut r = d[0] - query.coords;
         let mut f = r.norm_squared();
         for _ in 0..MAX_STEPS {
@@ -453,7 +541,7 @@ impl<'a> ClosestPoints<'a> {
             let mut accepted = false;
             for _ in 0..30 {
                 let (nu, nv) = ((u + step[0]).clamp(u0, u1), (v + step[1]).clamp(v0, v1));
-                let nd = second_order(s, nu, nv);
+                let nd = second_order(s, nu, nv, piece);
                 let nr = nd[0] - query.coords;
                 let nf = nr.norm_squared();
                 // Within rounding of no worse: near the answer `f` stops resolving the steps

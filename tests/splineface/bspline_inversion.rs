@@ -45,50 +45,127 @@ proptest! {
         seed in any::<u64>(),
     ) {
         prop_assume!(ku.degree() >= 2 && kv.degree() >= 2);
-        let s = height_field(ku, kv, 0.25, seed);
-        let inverter = ClosestPoints::new(&s);
-        let mut rng = Lcg(seed ^ 0x9e37);
-        let (rows, cols) = (s.rows() as Real, s.cols() as Real);
-        for k in 0..20 {
-            // Half the queries near the surface (the use: a scan against its fitted surface),
-            // where the answer must be global; half anywhere around it, where a strongly
-            // folded surface may hide a nearer basin from the starts and only a local
-            // minimum is promised.
-            let near = k % 2 == 0;
-            let query = if near {
-                let ((u0, u1), (v0, v1)) = (s.domain_u(), s.domain_v());
-                let (u, v) = (rng.uniform(u0, u1), rng.uniform(v0, v1));
-                let n = s.normal(u, v).unwrap().map_or(Vector3::z(), |n| n.into_inner());
-                s.eval(u, v).unwrap() + n * rng.uniform(-0.05, 0.05)
-            } else {
-                Point3::new(rng.uniform(-1.0, rows), rng.uniform(-1.0, cols), rng.uniform(-2.0, 2.0))
-            };
-            let c = inverter.closest(&query).unwrap();
-            prop_assert!((c.point - s.eval(c.u, c.v).unwrap()).norm() < 1e-12);
-            prop_assert!((c.distance - (c.point - query).norm()).abs() < 1e-12);
-            // Samples 1/199 of the domain apart lie within a step of the true minimum.
-            if near {
-                let brute = brute_force(&s, &query, 200);
-                prop_assert!(c.distance <= brute + 1e-9, "{} > {}", c.distance, brute);
-            }
-            // Inside the domain, and off the creases (knots of multiplicity ≥ the degree, where
-            // the surface is only C⁰), the residual is normal to the surface.
+        check_closest_points(ku, kv, seed)?;
+    }
+}
+
+#[test]
+fn a_crease_next_to_the_start_does_not_hide_the_nearer_side() {
+    // Found by the property test: a biquadratic with a double knot (a C⁰ crease) in v at
+    // 0.8207. A query 0.03 from the surface had its nearest point just below the crease
+    // (v ≈ 0.8191), but every start sat on the crease's sample, where the derivatives are the
+    // upper piece's, so Newton found only the local minimum just above it (v = 0.82091).
+    let ku = KnotVector::new(2, vec![-0.6, -0.3, 0.0, 1.0, 1.3, 1.6]).unwrap();
+    let crease = 0.8207233719708763;
+    let kv = KnotVector::new(2, vec![-0.6, -0.3, 0.0, crease, crease, 1.0, 1.3, 1.6]).unwrap();
+    check_closest_points(ku, kv, 7324076834798080410).unwrap();
+}
+
+#[test]
+fn a_minimum_on_a_crease_is_found_on_it() {
+    // Found by the property test: a quartic × quadratic with a double knot (a C⁰ crease) in
+    // v at 0.3722. Queries whose nearest point lies on the crease, where the distance has a
+    // kink, once stopped 1e-6 off it with a residual far from normal (cosine 0.33).
+    let ku = KnotVector::new(
+        4,
+        vec![
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.0,
+            0.5870757923148244,
+            1.0,
+            1.0,
+            1.0,
+            1.0,
+            1.0,
+        ],
+    )
+    .unwrap();
+    let crease = 0.37220812539262854;
+    let kv = KnotVector::new(
+        2,
+        vec![
+            0.0,
+            0.0,
+            0.0,
+            crease,
+            crease,
+            0.585929532948649,
+            2.0 / 3.0,
+            5.0 / 6.0,
+            1.0,
+            1.0,
+            1.0,
+        ],
+    )
+    .unwrap();
+    for seed in 0..400 {
+        check_closest_points(ku.clone(), kv.clone(), seed).unwrap();
+    }
+}
+
+/// Twenty queries against a random height field on `ku × kv`: global answers near the
+/// surface, stationary ones off the creases.
+fn check_closest_points(ku: KnotVector, kv: KnotVector, seed: u64) -> Result<(), TestCaseError> {
+    let s = height_field(ku, kv, 0.25, seed);
+    let inverter = ClosestPoints::new(&s);
+    let mut rng = Lcg(seed ^ 0x9e37);
+    let (rows, cols) = (s.rows() as Real, s.cols() as Real);
+    for k in 0..20 {
+        // Half the queries near the surface (the use: a scan against its fitted surface),
+        // where the answer must be global; half anywhere around it, where a strongly
+        // folded surface may hide a nearer basin from the starts and only a local
+        // minimum is promised.
+        let near = k % 2 == 0;
+        let query = if near {
             let ((u0, u1), (v0, v1)) = (s.domain_u(), s.domain_v());
-            let crease = |k: &KnotVector, t: Real| {
-                k.knots()
-                    .iter()
-                    .any(|&x| (x - t).abs() < 1e-6 && k.knots().iter().filter(|&&y| y == x).count() >= k.degree())
-            };
-            let smooth = !crease(s.knots_u(), c.u) && !crease(s.knots_v(), c.v);
-            if smooth && c.u > u0 && c.u < u1 && c.v > v0 && c.v < v1 && c.distance > 1e-9 {
-                let d = s.derivatives(c.u, c.v, 1).unwrap();
-                let r = c.point - query;
-                let (fu, fv) = (d.get(1, 0), d.get(0, 1));
-                let (cu, cv) = (r.dot(&fu) / (r.norm() * fu.norm()), r.dot(&fv) / (r.norm() * fv.norm()));
-                prop_assert!(cu.abs() <= 1e-9 && cv.abs() <= 1e-9, "cosines {} {} at {:?}", cu, cv, c);
-            }
+            let (u, v) = (rng.uniform(u0, u1), rng.uniform(v0, v1));
+            let n = s.normal(u, v).unwrap().map_or(Vector3::z(), |n| n.into_inner());
+            s.eval(u, v).unwrap() + n * rng.uniform(-0.05, 0.05)
+        } else {
+            Point3::new(
+                rng.uniform(-1.0, rows),
+                rng.uniform(-1.0, cols),
+                rng.uniform(-2.0, 2.0),
+            )
+        };
+        let c = inverter.closest(&query).unwrap();
+        prop_assert!((c.point - s.eval(c.u, c.v).unwrap()).norm() < 1e-12);
+        prop_assert!((c.distance - (c.point - query).norm()).abs() < 1e-12);
+        // Samples 1/199 of the domain apart lie within a step of the true minimum.
+        if near {
+            let brute = brute_force(&s, &query, 200);
+            prop_assert!(c.distance <= brute + 1e-9, "{} > {}", c.distance, brute);
+        }
+        // Inside the domain, and off the creases (knots of multiplicity ≥ the degree, where
+        // the surface is only C⁰), the residual is normal to the surface.
+        let ((u0, u1), (v0, v1)) = (s.domain_u(), s.domain_v());
+        let crease = |k: &KnotVector, t: Real| {
+            k.knots()
+                .iter()
+                .any(|&x| (x - t).abs() < 1e-6 && k.knots().iter().filter(|&&y| y == x).count() >= k.degree())
+        };
+        let smooth = !crease(s.knots_u(), c.u) && !crease(s.knots_v(), c.v);
+        if smooth && c.u > u0 && c.u < u1 && c.v > v0 && c.v < v1 && c.distance > 1e-9 {
+            let d = s.derivatives(c.u, c.v, 1).unwrap();
+            let r = c.point - query;
+            let (fu, fv) = (d.get(1, 0), d.get(0, 1));
+            let (cu, cv) = (
+                r.dot(&fu) / (r.norm() * fu.norm()),
+                r.dot(&fv) / (r.norm() * fv.norm()),
+            );
+            prop_assert!(
+                cu.abs() <= 1e-9 && cv.abs() <= 1e-9,
+                "cosines {} {} at {:?}",
+                cu,
+                cv,
+                c
+            );
         }
     }
+    Ok(())
 }
 
 #[test]
