@@ -1708,6 +1708,78 @@ impl FaceSpace {
         options: &RefineOptions,
     ) -> Result<Refinement, FaceError> {
         check_refine(fit, views, options)?;
+        let problem = self.problem(fit, views, point_weights, options);
+        let (state, iterations, level) = self.run_levels(reference, &problem, options)?;
+        let (start, landmarks) = (problem.start.clone(), &problem.landmarks);
+        let before_visibility = level.visibility(&start);
+        let after_visibility = level.visibility(&state);
+        let before = level.disagreement(&start, &before_visibility);
+        let after = level.disagreement(&state, &after_visibility);
+        // Over the face: the weighted RMS over every sample two photos see, and their count.
+        let overall = |per: &[Option<(Real, Real)>]| {
+            let (sum, total, count) = per
+                .iter()
+                .flatten()
+                .fold((0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + 1));
+            ((sum / total.max(1e-12)).sqrt(), count)
+        };
+        // Per sample: the weighted RMS, NaN where fewer than two photos see it.
+        let rms = |per: &[Option<(Real, Real)>]| -> Vec<Real> {
+            per.iter()
+                .map(|p| p.map_or(Real::NAN, |(sum, total)| (sum / total).sqrt()))
+                .collect()
+        };
+        let ((before_rms, _), (after_rms, seen_twice)) = (overall(&before), overall(&after));
+        let disagreement = (before_rms, after_rms);
+        let landmark_rms = (landmarks.rms(&start), landmarks.rms(&state));
+        let (width, height, before) = level.grid_of(&rms(&before));
+        let (_, _, after) = level.grid_of(&rms(&after));
+        let map = ConsistencyMap {
+            width,
+            height,
+            before,
+            after,
+        };
+        let coverage = after_visibility
+            .iter()
+            .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
+            .collect();
+        let (accepted, note) = verdict(disagreement, landmark_rms, options);
+        let kept = if accepted { state } else { start };
+        Ok(Refinement {
+            displacement: kept.field.iter().map(|&d| Vector3::new(0.0, 0.0, d)).collect(),
+            weights: kept.weights,
+            cameras: kept.cameras,
+            disagreement,
+            landmark_rms,
+            coverage,
+            map,
+            samples: (level.samples.len(), seen_twice),
+            iterations,
+            accepted,
+            note,
+        })
+    }
+}
+
+/// What every level of a refinement shares: the starting state, the landmarks' problem, each
+/// photo's expression as a displacement of the control grid, and the photos' face boxes.
+struct Problem<'a> {
+    start: State,
+    landmarks: Landmarks<'a>,
+    expression_grids: Vec<Vec<Vector3<Real>>>,
+    boxes: Vec<[Real; 4]>,
+}
+
+impl FaceSpace {
+    /// The shared parts of a refinement of `fit` by `views`.
+    fn problem<'a>(
+        &self,
+        fit: &PhotoSpaceFit,
+        views: &'a [RefineView<'a>],
+        point_weights: &'a [Real; POINT_COUNT],
+        options: &RefineOptions,
+    ) -> Problem<'a> {
         let start = State {
             weights: fit.weights.clone(),
             cameras: fit
@@ -1762,93 +1834,73 @@ impl FaceSpace {
             point_weights,
             units: start.cameras.iter().map(|c| c.scale).collect(),
         };
-        let boxes = face_boxes(views);
-        let mut state = start.clone();
+        Problem {
+            start,
+            landmarks,
+            expression_grids,
+            boxes: face_boxes(views),
+        }
+    }
+
+    /// Level `level_index` of `options.levels` (the last is the finest), its photos resampled
+    /// about their faces as the cameras of `state` see them.
+    fn level<'a>(
+        &'a self,
+        reference: &ReferenceFace,
+        problem: &'a Problem<'a>,
+        state: &State,
+        level_index: usize,
+        options: &'a RefineOptions,
+    ) -> Result<Level<'a>, FaceError> {
+        let coarser = (options.levels - 1 - level_index) as i32;
+        let eye_pixels = options.eye_pixels / 2.0_f64.powi(coarser);
+        let spacing = options.spacing * 2.0_f64.powi(coarser);
+        let images: Vec<LevelImage> = problem
+            .landmarks
+            .views
+            .iter()
+            .zip(&problem.boxes)
+            .zip(&state.cameras)
+            .map(|((v, b), camera)| {
+                let eye = 50.0 * camera.scale;
+                let factor = (eye_pixels / eye).min(1.0);
+                let window = (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
+                LevelImage::new(v.image, *b, factor, window)
+            })
+            .collect();
+        let samples = Samples::new(self, reference, &problem.expression_grids, spacing)?;
+        let mut level = Level {
+            images,
+            samples,
+            landmarks: &problem.landmarks,
+            sigma_prior: self.sigma(),
+            options,
+            grid: (self.surfaces().base().rows(), self.surfaces().base().cols()),
+            photo_weights: vec![1.0; problem.start.cameras.len()],
+        };
+        if options.photo_weights {
+            level.photo_weights = level.photo_weights(state);
+        }
+        Ok(level)
+    }
+
+    /// Every level, coarse to fine, from the problem's start: the refined state, the
+    /// iterations run and the finest level.
+    fn run_levels<'a>(
+        &'a self,
+        reference: &ReferenceFace,
+        problem: &'a Problem<'a>,
+        options: &'a RefineOptions,
+    ) -> Result<(State, usize, Level<'a>), FaceError> {
+        let mut state = problem.start.clone();
         let mut iterations = 0;
         let mut finest = None;
         for level_index in 0..options.levels {
-            let coarser = (options.levels - 1 - level_index) as i32;
-            let eye_pixels = options.eye_pixels / 2.0_f64.powi(coarser);
-            let spacing = options.spacing * 2.0_f64.powi(coarser);
-            let images: Vec<LevelImage> = views
-                .iter()
-                .zip(&boxes)
-                .zip(&state.cameras)
-                .map(|((v, b), camera)| {
-                    let eye = 50.0 * camera.scale;
-                    let factor = (eye_pixels / eye).min(1.0);
-                    let window =
-                        (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
-                    LevelImage::new(v.image, *b, factor, window)
-                })
-                .collect();
-            let samples = Samples::new(self, reference, &expression_grids, spacing)?;
-            let mut level = Level {
-                images,
-                samples,
-                landmarks: &landmarks,
-                sigma_prior: self.sigma(),
-                options,
-                grid: (self.surfaces().base().rows(), self.surfaces().base().cols()),
-                photo_weights: vec![1.0; views.len()],
-            };
-            if options.photo_weights {
-                level.photo_weights = level.photo_weights(&state);
-            }
+            let level = self.level(reference, problem, &state, level_index, options)?;
             state = level.minimise(state, options.iterations, &mut iterations);
-            if level_index + 1 == options.levels {
-                finest = Some(level);
-            }
+            finest = Some(level);
         }
-        let level = finest.expect("at least one level");
-        let before_visibility = level.visibility(&start);
-        let after_visibility = level.visibility(&state);
-        let before = level.disagreement(&start, &before_visibility);
-        let after = level.disagreement(&state, &after_visibility);
-        // Over the face: the weighted RMS over every sample two photos see, and their count.
-        let overall = |per: &[Option<(Real, Real)>]| {
-            let (sum, total, count) = per
-                .iter()
-                .flatten()
-                .fold((0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + 1));
-            ((sum / total.max(1e-12)).sqrt(), count)
-        };
-        // Per sample: the weighted RMS, NaN where fewer than two photos see it.
-        let rms = |per: &[Option<(Real, Real)>]| -> Vec<Real> {
-            per.iter()
-                .map(|p| p.map_or(Real::NAN, |(sum, total)| (sum / total).sqrt()))
-                .collect()
-        };
-        let ((before_rms, _), (after_rms, seen_twice)) = (overall(&before), overall(&after));
-        let disagreement = (before_rms, after_rms);
-        let landmark_rms = (landmarks.rms(&start), landmarks.rms(&state));
-        let (width, height, before) = level.grid_of(&rms(&before));
-        let (_, _, after) = level.grid_of(&rms(&after));
-        let map = ConsistencyMap {
-            width,
-            height,
-            before,
-            after,
-        };
-        let coverage = after_visibility
-            .iter()
-            .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
-            .collect();
-        let (accepted, note) = verdict(disagreement, landmark_rms, options);
-        let kept = if accepted { state } else { start };
-        Ok(Refinement {
-            displacement: kept.field.iter().map(|&d| Vector3::new(0.0, 0.0, d)).collect(),
-            weights: kept.weights,
-            cameras: kept.cameras,
-            disagreement,
-            landmark_rms,
-            coverage,
-            map,
-            samples: (level.samples.len(), seen_twice),
-            iterations,
-            accepted,
-            note,
-        })
+        Ok((state, iterations, finest.expect("at least one level")))
     }
 }
 
