@@ -11,7 +11,9 @@
 //!   [`bspline::BSplineSurface`] (evaluation, derivatives, normals, dense grids, the sparse
 //!   basis matrix, affine maps, JSON and STEP files), [`bspline::SurfaceFit`] (least-squares control grids
 //!   from up to millions of scattered samples) and [`bspline::SurfaceSpace`] (linear spaces
-//!   of surfaces on one knot layout: a base grid plus displacement modes).
+//!   of surfaces on one knot layout: a base grid plus displacement modes); [`scan`]: any
+//!   scan that is a height field over some plane to a spline ([`scan::fit_scan`], knots
+//!   inserted where the residual asks for them).
 //!
 //! * [`structure`]: the paper's 40-point face structure (points, groups, mirror partners), its
 //!   derivation from the 68-point iBUG annotation, the canonical frame, edges, sub-structures
@@ -85,6 +87,7 @@ pub mod random;
 pub mod reference;
 pub mod render;
 pub mod report;
+pub mod scan;
 pub mod structure;
 
 pub use error::Error;

@@ -35,5 +35,6 @@ mod refine;
 mod render;
 mod report;
 mod report_page;
+mod scan;
 mod structure;
 mod texture;

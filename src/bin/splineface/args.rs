@@ -61,6 +61,14 @@ pub(crate) enum Command {
     /// millimetre errors) into a directory.
     #[command(allow_negative_numbers = true)]
     Compare(CompareArgs),
+    /// Fit a B-spline surface to any scan that is a height field over some plane (a mesh's
+    /// vertices or a point cloud): writes the surface (JSON or STEP), and beside it
+    /// STEM.residuals.json (the fit's report) and STEM.residuals.png (each point's residual
+    /// over the surface's parameters). With `--tolerance`, knots are inserted where the
+    /// residual exceeds it until it holds or `--max-grid` is reached. A closed or folded scan
+    /// is refused.
+    #[command(allow_negative_numbers = true)]
+    FitSurface(FitSurfaceArgs),
 }
 
 // The arguments of `splineface inspect`.
@@ -357,4 +365,36 @@ impl OutputArgs {
             .options()
             .map_err(|e| anyhow::anyhow!("--{} {}: {}", e.setting.replace('_', "-"), e.value, e.expected))
     }
+}
+
+// The arguments of `splineface fit-surface`.
+#[derive(clap::Args)]
+pub(crate) struct FitSurfaceArgs {
+    /// The scan: a mesh (OBJ, PLY, glTF or GLB; its vertices are fitted) or XYZ text (`.xyz`
+    /// or `.txt`, one `x y z` a line).
+    pub(crate) scan: PathBuf,
+    /// The surface to write: `.json` or `.step`.
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// Control points per direction (the starting grid with `--tolerance`).
+    #[arg(long, default_value_t = 16)]
+    pub(crate) grid: usize,
+    /// The largest residual allowed, in the scan's units: refine the knots until it holds.
+    #[arg(long)]
+    pub(crate) tolerance: Option<f64>,
+    /// The most control points per direction `--tolerance` may reach.
+    #[arg(long, default_value_t = 128)]
+    pub(crate) max_grid: usize,
+    /// The degree in both directions (1 to 5).
+    #[arg(long, default_value_t = 3)]
+    pub(crate) degree: usize,
+    /// The thin-plate smoothness weight (0: pure least squares).
+    #[arg(long, default_value_t = 1e-12)]
+    pub(crate) smoothness: f64,
+    /// The plane's normal `X,Y,Z` (default: the points' direction of least variance).
+    #[arg(long)]
+    pub(crate) normal: Option<String>,
+    /// Also write the surface as a mesh over the scan's part of the plane: `.obj` or `.ply`.
+    #[arg(long)]
+    pub(crate) mesh: Option<PathBuf>,
 }

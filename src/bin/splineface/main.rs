@@ -7,8 +7,8 @@ mod args;
 
 use anyhow::{Context, Result, bail};
 use args::{
-    BatchArgs, Cli, Command, CompareArgs, DemoArgs, FitReferenceArgs, LandmarksArgs, ReconstructArgs,
-    RenderDepthArgs,
+    BatchArgs, Cli, Command, CompareArgs, DemoArgs, FitReferenceArgs, FitSurfaceArgs, LandmarksArgs,
+    ReconstructArgs, RenderDepthArgs,
 };
 use clap::Parser;
 use splineface::bspline::BSplineSurface;
@@ -45,7 +45,100 @@ fn run(cli: Cli) -> Result<()> {
         Command::Demo(a) => demo_command(&a),
         Command::RenderDepth(a) => render_depth(&a),
         Command::Compare(a) => compare(&a),
+        Command::FitSurface(a) => fit_surface(&a),
     }
+}
+
+fn fit_surface(a: &FitSurfaceArgs) -> Result<()> {
+    use splineface::scan::{ScanFitOptions, SurfaceFormat, fit_scan, read_scan_points, residual_paths};
+    let normal = match &a.normal {
+        None => None,
+        Some(text) => {
+            let values: Vec<f64> = text
+                .split(',')
+                .map(|t| t.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .ok()
+                .filter(|v: &Vec<f64>| v.len() == 3)
+                .with_context(|| format!("--normal {text}: expected X,Y,Z"))?;
+            Some(nalgebra::Vector3::new(values[0], values[1], values[2]))
+        }
+    };
+    let options = ScanFitOptions {
+        degree: a.degree,
+        grid: a.grid,
+        tolerance: a.tolerance,
+        max_grid: a.max_grid,
+        smoothness: a.smoothness,
+        normal,
+    };
+    options.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
+    if SurfaceFormat::from_path(&a.out).is_none() {
+        bail!("{}: the surface must be .json or .step", a.out.display());
+    }
+    if let Some(m) = &a.mesh
+        && !matches!(
+            splineface::mesh::MeshFormat::from_path(m),
+            Some(splineface::mesh::MeshFormat::Obj | splineface::mesh::MeshFormat::Ply)
+        )
+    {
+        bail!("{}: the mesh must be .obj or .ply", m.display());
+    }
+    let (report_path, heatmap_path) = residual_paths(&a.out);
+    for path in [
+        Some(a.out.as_path()),
+        Some(&report_path),
+        Some(&heatmap_path),
+        a.mesh.as_deref(),
+    ]
+    .into_iter()
+    .flatten()
+    {
+        check_output_file(path)?;
+    }
+    let points = read_scan_points(&a.scan)?;
+    let start = std::time::Instant::now();
+    let fit = fit_scan(&points, &options).map_err(|e| anyhow::anyhow!("{}: {e}", a.scan.display()))?;
+    let seconds = start.elapsed().as_secs_f64();
+    let report = fit.report_json(&a.scan.display().to_string(), &options, seconds);
+    let files = fit.files(&a.out, a.mesh.as_deref(), &report)?;
+    write_files(&files)?;
+    let s = &fit.surface;
+    println!("{}", a.out.display());
+    println!("  points      {}", points.len());
+    println!(
+        "  grid        {} × {} control points, degree {}",
+        s.rows(),
+        s.cols(),
+        s.degree_u()
+    );
+    println!(
+        "  residual    RMS {:.3e}, largest {:.3e} (scan units)",
+        fit.rms, fit.max
+    );
+    if fit.layered > 0.0 {
+        println!(
+            "  folds       {:.1}% of the points lie where the scan has two layers; fitted through",
+            100.0 * fit.layered
+        );
+    }
+    match (fit.tolerance, fit.within_tolerance) {
+        (Some(t), Some(true)) => println!("  tolerance   {t} met after {} fits", fit.rounds),
+        (Some(t), _) => println!(
+            "  tolerance   {t} NOT met after {} fits: no knot cell over it holds the {} points a split needs, or the grid reached --max-grid {}",
+            fit.rounds,
+            splineface::scan::MIN_SPLIT_POINTS,
+            a.max_grid
+        ),
+        _ => {}
+    }
+    println!("  report      {}", report_path.display());
+    println!("  heatmap     {}", heatmap_path.display());
+    println!("  fit time    {:.1} ms", seconds * 1e3);
+    if fit.within_tolerance == Some(false) {
+        eprintln!("warning: the tolerance was not met (see the heatmap for where)");
+    }
+    Ok(())
 }
 
 /// Parses `W` or `WxH`.
