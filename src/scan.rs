@@ -439,15 +439,15 @@ pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<Sca
             .map(|uv| std::array::from_fn(|k| knots[k].span(uv[k]).expect("parameters lie in [0, 1]")))
             .collect();
         let width = knots[1].knots().len();
-        let mut per_cell = std::collections::HashMap::<usize, usize>::new();
+        let mut per_cell = vec![0usize; knots[0].knots().len() * width];
         for c in &spans {
-            *per_cell.entry(c[0] * width + c[1]).or_default() += 1;
+            per_cell[c[0] * width + c[1]] += 1;
         }
         let mut grown = false;
         for (k, knot) in knots.iter_mut().enumerate() {
             let mut marked = vec![false; knot.knots().len()];
             for (c, r) in spans.iter().zip(&residuals) {
-                if *r > tolerance && per_cell[&(c[0] * width + c[1])] >= MIN_SPLIT_POINTS {
+                if *r > tolerance && per_cell[c[0] * width + c[1]] >= MIN_SPLIT_POINTS {
                     marked[c[k]] = true;
                 }
             }
