@@ -161,6 +161,9 @@ pub enum ScanError {
     /// The kernel's fit failed.
     #[error(transparent)]
     Fit(#[from] BSplineError),
+    /// The surface's mesh could not be made (a surface point not finite).
+    #[error("the surface's mesh: {0}")]
+    Mesh(#[from] crate::mesh::MeshProblem),
     /// An output could not be encoded.
     #[error(transparent)]
     Encode(#[from] crate::io::EncodeError),
@@ -533,8 +536,11 @@ pub struct ScanFileError {
 
 impl ScanFit {
     /// The residuals on a `side × side` grid over `(u, v)` (rows from `v = 0`): each cell's
-    /// largest residual, NaN where no point falls.
+    /// largest residual, NaN where no point falls (empty for a `side` of 0).
     pub fn residual_grid(&self, side: usize) -> Vec<Real> {
+        if side == 0 {
+            return Vec::new();
+        }
         let mut grid = vec![Real::NAN; side * side];
         for (uv, r) in self.params.iter().zip(&self.residuals) {
             let i = ((uv[0] * side as Real) as usize).min(side - 1);
@@ -584,6 +590,9 @@ impl ScanFit {
     /// The surface evaluated on a `side × side` cell grid over `(u, v)`, keeping the cells
     /// that hold a point of the scan (two triangles each), so that the rectangle's empty
     /// corners are left out.
+    ///
+    /// # Errors
+    /// [`ScanError::Fit`] for a `side` of 0, [`ScanError::Mesh`] if the mesh cannot be made.
     pub fn mesh(&self, side: usize) -> Result<crate::mesh::TriangleMesh, ScanError> {
         let ts: Vec<Real> = (0..=side).map(|k| k as Real / side as Real).collect();
         let grid = self.surface.eval_grid(&ts, &ts)?;
@@ -609,11 +618,7 @@ impl ScanFit {
                 }
             }
         }
-        crate::mesh::TriangleMesh::new(grid, triangles).map_err(|e| ScanError::Option {
-            name: "mesh",
-            value: e.to_string(),
-            expected: "a valid mesh",
-        })
+        Ok(crate::mesh::TriangleMesh::new(grid, triangles)?)
     }
 
     /// The report of the fit as JSON: the scan's name, points, degree, grid, knots, rounds,

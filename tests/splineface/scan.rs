@@ -49,6 +49,13 @@ fn a_bicubic_height_field_is_fitted_exactly_over_its_plane() {
     assert!(fit.max < 1e-9, "largest residual {}", fit.max);
     assert_eq!((fit.surface.rows(), fit.surface.cols(), fit.rounds), (4, 4, 1));
     assert_eq!(fit.layered, 0.0);
+    // The residual grid keeps each cell's largest residual; no cells for a side of 0.
+    let grid = fit.residual_grid(8);
+    assert_eq!(
+        grid.iter().copied().filter(|r| !r.is_nan()).fold(0.0, Real::max),
+        fit.max
+    );
+    assert!(fit.residual_grid(0).is_empty() && fit.mesh(0).is_err());
     // Every point's residual is its distance to the surface point at its parameters.
     for (k, p) in points.iter().enumerate().step_by(97) {
         let [u, v] = fit.params[k];
