@@ -473,8 +473,9 @@ pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<Sca
     }
 }
 
-/// Reads a scan's points: the vertices of a mesh (OBJ, PLY, glTF or GLB, by
-/// [`crate::mesh::read_mesh`]) or an XYZ text file (`.xyz` or `.txt`: one point a line, its
+/// Reads a scan's points: the vertices of a mesh (OBJ, glTF or GLB, by
+/// [`crate::mesh::read_mesh`]), of a PLY file with or without faces (a point cloud,
+/// [`crate::mesh::parse_ply_points`]), or an XYZ text file (`.xyz` or `.txt`: one point a line, its
 /// first three numbers separated by spaces, tabs or commas; blank lines and lines starting
 /// with `#` or `//` skipped).
 ///
@@ -490,6 +491,12 @@ pub fn read_scan_points(path: &Path) -> Result<Vec<Point3<Real>>, ScanFileError>
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase)
         .unwrap_or_default();
+    if extension == "ply" {
+        // A point cloud, or a mesh's vertices.
+        let bytes = crate::io::read_input(path, crate::io::MAX_LARGE_INPUT_BYTES)
+            .map_err(|e| error(e.to_string()))?;
+        return crate::mesh::parse_ply_points(&bytes).map_err(|e| error(e.to_string()));
+    }
     if extension != "xyz" && extension != "txt" {
         let mesh = crate::mesh::read_mesh(path).map_err(|e| error(e.problem.to_string()))?;
         return Ok(mesh.positions().to_vec());

@@ -32,7 +32,7 @@ pub use glb::{MAX_GLB_BYTES, PngTexture, encode_glb, write_glb};
 pub use gltf::parse_gltf;
 pub(crate) use obj::format_obj_with_material;
 pub use obj::{format_mtl, format_obj, parse_obj, write_obj};
-pub use ply::{PlyEncoding, encode_ply, parse_ply};
+pub use ply::{PlyEncoding, encode_ply, parse_ply, parse_ply_points};
 pub use raster::{FrontHit, Raster, front_heights, front_hits};
 
 /// Texture coordinates of a mesh (`v` up, as in OBJ and PLY; glTF's are flipped on reading):

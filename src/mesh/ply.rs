@@ -353,6 +353,38 @@ fn textured_mesh(
 /// malformed header, a missing `x`/`y`/`z` or face index list, a truncated body, a NaN or
 /// infinite coordinate, an index out of range, or no face.
 pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
+    let parts = parse_elements(bytes)?;
+    if !parts.has_faces {
+        return Err(MeshProblem::Empty);
+    }
+    textured_mesh(
+        parts.positions,
+        parts.triangles,
+        parts.vertex_uvs,
+        parts.corner_uvs,
+    )
+}
+
+/// The vertex positions of a PLY file, with or without faces (a point cloud).
+///
+/// # Errors
+/// As [`parse_ply`], except that a file without faces is read.
+pub fn parse_ply_points(bytes: &[u8]) -> Result<Vec<Point3<Real>>, MeshProblem> {
+    Ok(parse_elements(bytes)?.positions)
+}
+
+/// What a PLY file holds: its vertices, triangles, texture coordinates (per vertex, and per
+/// corner when the faces carry them), and whether it has a face element.
+struct PlyParts {
+    positions: Vec<Point3<Real>>,
+    triangles: Vec<[u32; 3]>,
+    vertex_uvs: Vec<Point2<Real>>,
+    corner_uvs: Option<Vec<Point2<Real>>>,
+    has_faces: bool,
+}
+
+/// [`parse_ply`]'s reading, faces or none.
+fn parse_elements(bytes: &[u8]) -> Result<PlyParts, MeshProblem> {
     let (format, elements, body) = header(bytes)?;
     let mut body = match format {
         Format::Ascii => Body::Ascii(
@@ -463,18 +495,16 @@ pub fn parse_ply(bytes: &[u8]) -> Result<TriangleMesh, MeshProblem> {
     if !has_vertices {
         return Err(syntax("header", "no vertex element"));
     }
-    if !has_faces {
-        return Err(MeshProblem::Empty);
-    }
     let corner_textured = elements
         .iter()
         .any(|e| e.name == "face" && e.properties.iter().any(|p| p.name() == "texcoord"));
-    textured_mesh(
+    Ok(PlyParts {
         positions,
         triangles,
         vertex_uvs,
-        corner_textured.then_some(corner_uvs),
-    )
+        corner_uvs: corner_textured.then_some(corner_uvs),
+        has_faces,
+    })
 }
 
 /// Whether a texture is per vertex (one coordinate per vertex, indexed like the triangles).

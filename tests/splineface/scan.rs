@@ -265,6 +265,19 @@ fn xyz_files_are_read_and_their_errors_name_the_line() {
             "{error}"
         );
     }
+    // A PLY point cloud (no faces) gives its vertices; so does a PLY mesh.
+    let ply = dir.join("cloud.ply");
+    std::fs::write(&ply, "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 5 6\n").unwrap();
+    assert_eq!(
+        read_scan_points(&ply).unwrap(),
+        vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+    );
+    std::fs::write(&ply, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 nan\n").unwrap();
+    let error = read_scan_points(&ply).unwrap_err().to_string();
+    assert!(
+        error.contains("cloud.ply") && error.contains("vertex 0"),
+        "{error}"
+    );
     // A mesh gives its vertices.
     let obj = dir.join("tri.obj");
     std::fs::write(&obj, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
