@@ -386,5 +386,37 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
         );
     }
     assert!(!dir.join("x.json").exists());
+    // An output over the scan itself is refused, and the scan is left as it was.
+    let before = std::fs::read(&scan).unwrap();
+    let run = splineface(&[
+        "fit-surface",
+        &s(&scan),
+        "--out",
+        &s(&dir.join("y.json")),
+        "--mesh",
+        &s(&scan),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && stderr.contains("must be .obj or .ply"),
+        "{stderr}"
+    );
+    let cloud = dir.join("cloud.ply");
+    std::fs::write(&cloud, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n").unwrap();
+    let run = splineface(&[
+        "fit-surface",
+        &s(&cloud),
+        "--out",
+        &s(&dir.join("y.json")),
+        "--mesh",
+        &s(&cloud),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && stderr.contains("would overwrite the scan"),
+        "{stderr}"
+    );
+    assert_eq!(std::fs::read(&scan).unwrap(), before);
+    assert!(std::fs::read_to_string(&cloud).unwrap().ends_with("1 2 3\n"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -95,6 +95,14 @@ fn fit_surface(a: &FitSurfaceArgs) -> Result<()> {
     .flatten()
     {
         check_output_file(path)?;
+        let same = |x: &Path, y: &Path| {
+            x.canonicalize()
+                .ok()
+                .is_some_and(|x| y.canonicalize().ok() == Some(x))
+        };
+        if same(path, &a.scan) {
+            bail!("{}: an output would overwrite the scan", path.display());
+        }
     }
     let points = read_scan_points(&a.scan)?;
     let start = std::time::Instant::now();
