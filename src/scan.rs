@@ -10,8 +10,12 @@
 //! starts from a coarse grid and inserts knots only where the residual asks for them: both spans
 //! of every knot cell holding a point whose residual exceeds the tolerance (and
 //! [`MIN_SPLIT_POINTS`] points or more) are halved, and the surface is fitted again, until every
-//! residual is within the tolerance, no cell can be split, or the grid reaches its cap. The residual of a point is its distance to the surface point at its
-//! parameters, `‖F(uₛ, vₛ) − pₛ‖`, which bounds its distance to the surface from above.
+//! residual is within the tolerance, no cell can be split, or the grid reaches its cap.
+//!
+//! The residual of a point is its distance to the surface point at its parameters,
+//! `‖F(uₛ, vₛ) − pₛ‖`, which bounds its distance to the surface from above; the true distances
+//! (closest points, by the kernel's point inversion) of up to [`DISTANCE_SAMPLES`] points are
+//! measured too ([`ScanFit::distances`]).
 //!
 //! A scan that is not a height field over the plane (a closed head, a folded sheet) is refused
 //! ([`ScanError::NotHeightField`]) rather than fitted into garbage: the plane's rectangle is cut
@@ -110,6 +114,51 @@ pub struct ScanFit {
     pub layered: Real,
     /// Whether every residual is within the tolerance (`None` without one).
     pub within_tolerance: Option<bool>,
+    /// The points' true distances to the surface, by point inversion
+    /// ([`crate::bspline::ClosestPoints`]), over at most [`DISTANCE_SAMPLES`] of them.
+    pub distances: DistanceSample,
+}
+
+/// The most points whose true distance [`fit_scan`] measures (every `k`-th point beyond).
+pub const DISTANCE_SAMPLES: usize = 20_000;
+
+/// Distances from a sample of a scan's points to its fitted surface.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DistanceSample {
+    /// Points measured.
+    pub count: usize,
+    /// Root mean square distance.
+    pub rms: Real,
+    /// The 99th percentile.
+    pub p99: Real,
+    /// The largest.
+    pub max: Real,
+}
+
+impl DistanceSample {
+    /// The closest-point distances from every `k`-th of `points` to `surface`, so that at most
+    /// [`DISTANCE_SAMPLES`] are measured.
+    fn measure(surface: &BSplineSurface, points: &[Point3<Real>]) -> Result<Self, BSplineError> {
+        let stride = points.len().div_ceil(DISTANCE_SAMPLES).max(1);
+        let sample: Vec<Point3<Real>> = points.iter().step_by(stride).copied().collect();
+        let closest = crate::bspline::ClosestPoints::new(surface).closest_many(&sample)?;
+        let mut d: Vec<Real> = closest.iter().map(|c| c.distance).collect();
+        d.sort_by(|a, b| a.total_cmp(b));
+        Ok(DistanceSample {
+            count: d.len(),
+            rms: (d.iter().map(|x| x * x).sum::<Real>() / d.len().max(1) as Real).sqrt(),
+            p99: percentile(&d, 0.99),
+            max: d.last().copied().unwrap_or(0.0),
+        })
+    }
+}
+
+/// The `q`-quantile of ascending `sorted` (nearest rank; 0 for none).
+fn percentile(sorted: &[Real], q: Real) -> Real {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() - 1) as Real * q).round() as usize]
 }
 
 /// Why a scan could not be fitted.
@@ -418,23 +467,26 @@ pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<Sca
         let residuals: Vec<Real> = at.iter().zip(points).map(|(f, p)| (f - p).norm()).collect();
         let max = residuals.iter().copied().fold(0.0, Real::max);
         let rms = (residuals.iter().map(|r| r * r).sum::<Real>() / residuals.len() as Real).sqrt();
-        let finish = |within_tolerance| ScanFit {
-            surface: surface.clone(),
-            plane,
-            params: params.clone(),
-            residuals: residuals.clone(),
-            rms,
-            max,
-            rounds,
-            tolerance: options.tolerance,
-            layered: share,
-            within_tolerance,
+        let finish = |within_tolerance| -> Result<ScanFit, ScanError> {
+            Ok(ScanFit {
+                distances: DistanceSample::measure(&surface, points)?,
+                surface: surface.clone(),
+                plane,
+                params: params.clone(),
+                residuals: residuals.clone(),
+                rms,
+                max,
+                rounds,
+                tolerance: options.tolerance,
+                layered: share,
+                within_tolerance,
+            })
         };
         let Some(tolerance) = options.tolerance else {
-            return Ok(finish(None));
+            return finish(None);
         };
         if max <= tolerance {
-            return Ok(finish(Some(true)));
+            return finish(Some(true));
         }
         // Halve the spans of every knot cell that holds a point beyond the tolerance and
         // enough points to pin down its halves, in each direction, as far as the cap allows.
@@ -469,7 +521,7 @@ pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<Sca
             }
         }
         if !grown {
-            return Ok(finish(Some(false)));
+            return finish(Some(false));
         }
     }
 }
@@ -634,7 +686,8 @@ impl ScanFit {
     pub fn report_json(&self, scan: &str, options: &ScanFitOptions, seconds: Real) -> String {
         let mut sorted = self.residuals.clone();
         sorted.sort_by(|a, b| a.total_cmp(b));
-        let p99 = sorted[((sorted.len() - 1) as Real * 0.99).round() as usize];
+        let p99 = percentile(&sorted, 0.99);
+        let d = &self.distances;
         let s = &self.surface;
         let v = |x: &Vector3<Real>| [x.x, x.y, x.z];
         let report = serde_json::json!({
@@ -650,6 +703,7 @@ impl ScanFit {
             "smoothness": options.smoothness,
             "layered_share": self.layered,
             "residual": { "rms": self.rms, "p99": p99, "max": self.max },
+            "distance": { "points": d.count, "rms": d.rms, "p99": d.p99, "max": d.max },
             "plane": {
                 "origin": [self.plane.origin.x, self.plane.origin.y, self.plane.origin.z],
                 "u_axis": v(&self.plane.axes[0]),

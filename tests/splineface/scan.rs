@@ -46,7 +46,12 @@ fn a_bicubic_height_field_is_fitted_exactly_over_its_plane() {
     // Without smoothing the rectangle's corners beyond the disc leave no control point free on
     // a 4 × 4 grid (one Bézier patch, every basis function reaches the disc).
     let fit = fit_scan(&points, &options).unwrap();
-    assert!(fit.max < 1e-9, "largest residual {}", fit.max);
+    assert!(
+        fit.max < 1e-9 && fit.distances.max < 1e-9,
+        "largest residual {}",
+        fit.max
+    );
+    assert_eq!(fit.distances.count, 4000);
     assert_eq!((fit.surface.rows(), fit.surface.cols(), fit.rounds), (4, 4, 1));
     assert_eq!(fit.layered, 0.0);
     // The residual grid keeps each cell's largest residual; no cells for a side of 0.
@@ -81,6 +86,11 @@ fn a_tolerance_inserts_knots_where_the_residual_is_and_is_met() {
         fit.max,
         fit.rounds
     );
+    // The true distances of every third point (20,000), by point inversion, are no larger
+    // than the residuals, which bound them.
+    let d = fit.distances;
+    assert_eq!(d.count, 20_000);
+    assert!(d.max <= fit.max + 1e-12 && d.p99 <= d.max && d.rms > 0.0, "{d:?}");
     // The knots were inserted unevenly: the spans differ by more than a factor of two.
     for knots in [fit.surface.knots_u(), fit.surface.knots_v()] {
         let breaks = knots.breakpoints();
@@ -322,6 +332,7 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
     assert_eq!(report["points"], 20_000);
     assert_eq!(report["within_tolerance"], true);
     assert!(report["residual"]["max"].as_f64().unwrap() <= 1e-3);
+    assert!(report["distance"]["max"].as_f64().unwrap() <= report["residual"]["max"].as_f64().unwrap());
     let heatmap = image::open(dir.join("cap.residuals.png")).unwrap();
     assert_eq!(heatmap.height(), 256);
     // The mesh lies on the surface's part over the disc: no vertex of a kept triangle is

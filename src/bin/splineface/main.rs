@@ -124,6 +124,11 @@ fn fit_surface(a: &FitSurfaceArgs) -> Result<()> {
         "  residual    RMS {:.3e}, largest {:.3e} (scan units)",
         fit.rms, fit.max
     );
+    let d = &fit.distances;
+    println!(
+        "  distance    RMS {:.3e}, 99% {:.3e}, largest {:.3e} (closest points of {} of the points)",
+        d.rms, d.p99, d.max, d.count
+    );
     if fit.layered > 0.0 {
         println!(
             "  folds       {:.1}% of the points lie where the scan has two layers; fitted through",
