@@ -41,6 +41,12 @@ const MAX_STEPS: usize = 30;
 /// span's upper edge (and where an answer on a piece's upper edge is looked up).
 const INSIDE: Real = 1e-9;
 
+/// `t`, moved below `hi` by [`INSIDE`] of `[lo, hi]`'s width when it is nearer `hi` than that,
+/// so that it looks up the span or cell below `hi` rather than the one `hi` starts.
+fn short_of_upper(t: Real, (lo, hi): (Real, Real)) -> Real {
+    t.min(hi - INSIDE * (hi - lo))
+}
+
 /// The closest point of a surface to a query point.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClosestPoint {
@@ -124,7 +130,7 @@ fn creases(knots: &super::KnotVector) -> Vec<Real> {
         .iter()
         .copied()
         .filter(|&k| k > t0 && k < t1)
-        .filter(|&k| knots.knots().iter().filter(|&&x| x == k).count() >= knots.degree())
+        .filter(|&k| super::refine::multiplicity(knots.knots(), k) >= knots.degree())
         .collect();
     out.dedup();
     out
@@ -413,8 +419,7 @@ impl<'a> ClosestPoints<'a> {
     /// The knot-span pair of an answer found in `piece` (one on the piece's upper edge belongs
     /// to the span below it, the span of the piece).
     fn span_of_answer(&self, found: &ClosestPoint, piece: &Piece) -> usize {
-        let within = |t: Real, (lo, hi): (Real, Real)| if t >= hi { hi - INSIDE * (hi - lo) } else { t };
-        self.span_of(self.cell(within(found.u, piece.u), within(found.v, piece.v)))
+        self.span_of(self.cell(short_of_upper(found.u, piece.u), short_of_upper(found.v, piece.v)))
     }
 
     /// The knot-span pair of sample cell `(i, j)` (the last samples belong to the last span).
@@ -461,13 +466,11 @@ impl<'a> ClosestPoints<'a> {
             }
             // A sample on the span's far edge is also the next span's first, and would put
             // the search in the next span's piece. So start just inside the span.
-            let inside = |t: Real, grid: &[Real], first: usize| {
-                let (lo, hi) = (grid[first], grid[first + SAMPLES_PER_SPAN]);
-                t.clamp(lo, hi - INSIDE * (hi - lo))
-            };
+            // (The span's samples lie in it, so only its upper edge needs keeping off.)
+            let span_ends = |grid: &[Real], first: usize| (grid[first], grid[first + SAMPLES_PER_SPAN]);
             let start = [
-                inside(self.us[i], &self.us, a * SAMPLES_PER_SPAN),
-                inside(self.vs[j], &self.vs, b * SAMPLES_PER_SPAN),
+                short_of_upper(self.us[i], span_ends(&self.us, a * SAMPLES_PER_SPAN)),
+                short_of_upper(self.vs[j], span_ends(&self.vs, b * SAMPLES_PER_SPAN)),
             ];
             let piece = self.piece(start[0], start[1]);
             let found = self.newton(query, start, &piece);

@@ -62,7 +62,7 @@ fn refine_curve(
 }
 
 /// How many times `value` appears in `knots`.
-fn multiplicity(knots: &[Real], value: Real) -> usize {
+pub(super) fn multiplicity(knots: &[Real], value: Real) -> usize {
     knots.iter().filter(|&&k| k == value).count()
 }
 
