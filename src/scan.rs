@@ -289,6 +289,11 @@ impl ScanPlane {
     }
 }
 
+/// The cell of `t ∈ [0, 1]` among `n ≥ 1` equal cells (1 in the last).
+fn cell_of(t: Real, n: usize) -> usize {
+    ((t * n as Real) as usize).min(n - 1)
+}
+
 /// The share of `points` lying in cells of the plane's rectangle whose heights hold a gap (see
 /// the module documentation).
 fn layered_share(points: &[Point3<Real>], plane: &ScanPlane, params: &[[Real; 2]]) -> Real {
@@ -303,8 +308,7 @@ fn layered_share(points: &[Point3<Real>], plane: &ScanPlane, params: &[[Real; 2]
     );
     let mut cells: Vec<Vec<Real>> = vec![Vec::new(); columns * rows];
     for (p, uv) in points.iter().zip(params) {
-        let i = ((uv[0] * columns as Real) as usize).min(columns - 1);
-        let j = ((uv[1] * rows as Real) as usize).min(rows - 1);
+        let (i, j) = (cell_of(uv[0], columns), cell_of(uv[1], rows));
         cells[j * columns + i].push(plane.height(p));
     }
     let gap = (3.0 * cell).max(0.02 * size);
@@ -337,54 +341,49 @@ impl ScanFitOptions {
     /// # Errors
     /// The first setting out of range.
     pub fn validate(&self) -> Result<(), ScanError> {
-        check_options(self)
+        let bad = |name: &'static str, value: String, expected: &'static str| {
+            Err(ScanError::Option {
+                name,
+                value,
+                expected,
+            })
+        };
+        if !(1..=5).contains(&self.degree) {
+            return bad("degree", self.degree.to_string(), "1 to 5");
+        }
+        if self.grid <= self.degree || self.grid > 1024 {
+            return bad(
+                "grid",
+                self.grid.to_string(),
+                "more than the degree, at most 1024",
+            );
+        }
+        if self.max_grid < self.grid || self.max_grid > 1024 {
+            return bad(
+                "max-grid",
+                self.max_grid.to_string(),
+                "at least the grid, at most 1024",
+            );
+        }
+        if let Some(t) = self.tolerance
+            && !(t > 0.0 && t.is_finite())
+        {
+            return bad("tolerance", t.to_string(), "positive and finite");
+        }
+        if !(self.smoothness >= 0.0 && self.smoothness.is_finite()) {
+            return bad("smoothness", self.smoothness.to_string(), "0 or more, finite");
+        }
+        if let Some(n) = self.normal
+            && !(n.iter().all(|c| c.is_finite()) && n.norm() > 0.0)
+        {
+            return bad(
+                "normal",
+                format!("{},{},{}", n.x, n.y, n.z),
+                "finite and not zero",
+            );
+        }
+        Ok(())
     }
-}
-
-/// [`ScanFitOptions::validate`].
-fn check_options(options: &ScanFitOptions) -> Result<(), ScanError> {
-    let bad = |name: &'static str, value: String, expected: &'static str| {
-        Err(ScanError::Option {
-            name,
-            value,
-            expected,
-        })
-    };
-    if !(1..=5).contains(&options.degree) {
-        return bad("degree", options.degree.to_string(), "1 to 5");
-    }
-    if options.grid <= options.degree || options.grid > 1024 {
-        return bad(
-            "grid",
-            options.grid.to_string(),
-            "more than the degree, at most 1024",
-        );
-    }
-    if options.max_grid < options.grid || options.max_grid > 1024 {
-        return bad(
-            "max-grid",
-            options.max_grid.to_string(),
-            "at least the grid, at most 1024",
-        );
-    }
-    if let Some(t) = options.tolerance
-        && !(t > 0.0 && t.is_finite())
-    {
-        return bad("tolerance", t.to_string(), "positive and finite");
-    }
-    if !(options.smoothness >= 0.0 && options.smoothness.is_finite()) {
-        return bad("smoothness", options.smoothness.to_string(), "0 or more, finite");
-    }
-    if let Some(n) = options.normal
-        && !(n.iter().all(|c| c.is_finite()) && n.norm() > 0.0)
-    {
-        return bad(
-            "normal",
-            format!("{},{},{}", n.x, n.y, n.z),
-            "finite and not zero",
-        );
-    }
-    Ok(())
 }
 
 /// The knots of `knots` with every span in `marked` halved.
@@ -425,7 +424,7 @@ fn halved(knots: &KnotVector, marked: &[bool]) -> Result<KnotVector, BSplineErro
 /// # Ok::<(), splineface::scan::ScanError>(())
 /// ```
 pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<ScanFit, ScanError> {
-    check_options(options)?;
+    options.validate()?;
     if let Some(index) = points
         .iter()
         .position(|p| !p.coords.iter().all(|c| c.is_finite()))
@@ -461,69 +460,79 @@ pub fn fit_scan(points: &[Point3<Real>], options: &ScanFitOptions) -> Result<Sca
         rounds += 1;
         let fitted = SurfaceFit::new(knots[0].clone(), knots[1].clone())
             .smoothness(options.smoothness)
+            .keep_residuals()
             .fit(&params, points)?;
-        let surface = fitted.surface;
-        let at = surface.eval_many(&params)?;
-        let residuals: Vec<Real> = at.iter().zip(points).map(|(f, p)| (f - p).norm()).collect();
+        let residuals = fitted.residuals;
         let max = residuals.iter().copied().fold(0.0, Real::max);
         let rms = (residuals.iter().map(|r| r * r).sum::<Real>() / residuals.len() as Real).sqrt();
-        let finish = |within_tolerance| -> Result<ScanFit, ScanError> {
-            Ok(ScanFit {
-                distances: DistanceSample::measure(&surface, points)?,
-                surface: surface.clone(),
-                plane,
-                params: params.clone(),
-                residuals: residuals.clone(),
-                rms,
-                max,
-                rounds,
-                tolerance: options.tolerance,
-                layered: share,
-                within_tolerance,
-            })
-        };
-        let Some(tolerance) = options.tolerance else {
-            return finish(None);
-        };
-        if max <= tolerance {
-            return finish(Some(true));
-        }
-        // Halve the spans of every knot cell that holds a point beyond the tolerance and
-        // enough points to pin down its halves, in each direction, as far as the cap allows.
-        let spans: Vec<[usize; 2]> = params
-            .par_iter()
-            .map(|uv| std::array::from_fn(|k| knots[k].span(uv[k]).expect("parameters lie in [0, 1]")))
-            .collect();
-        let width = knots[1].knots().len();
-        let mut per_cell = vec![0usize; knots[0].knots().len() * width];
-        for c in &spans {
-            per_cell[c[0] * width + c[1]] += 1;
-        }
-        let mut grown = false;
-        for (k, knot) in knots.iter_mut().enumerate() {
-            let mut marked = vec![false; knot.knots().len()];
-            for (c, r) in spans.iter().zip(&residuals) {
-                if *r > tolerance && per_cell[c[0] * width + c[1]] >= MIN_SPLIT_POINTS {
-                    marked[c[k]] = true;
+        let within_tolerance = match options.tolerance {
+            None => None,
+            Some(tolerance) if max <= tolerance => Some(true),
+            Some(tolerance) => {
+                if split_knots(&mut knots, &params, &residuals, tolerance, options.max_grid)? {
+                    continue;
                 }
+                Some(false)
             }
-            let room = options.max_grid - knot.num_control_points();
-            let mut count = 0;
-            for m in marked.iter_mut() {
-                if *m {
-                    count += 1;
-                    *m = count <= room;
-                }
-            }
-            if marked.iter().any(|m| *m) {
-                *knot = halved(knot, &marked)?;
-                grown = true;
+        };
+        let surface = fitted.surface;
+        return Ok(ScanFit {
+            distances: DistanceSample::measure(&surface, points)?,
+            surface,
+            plane,
+            params,
+            residuals,
+            rms,
+            max,
+            rounds,
+            tolerance: options.tolerance,
+            layered: share,
+            within_tolerance,
+        });
+    }
+}
+
+/// Halves both spans of every knot cell that holds a point whose residual exceeds `tolerance`
+/// and [`MIN_SPLIT_POINTS`] points or more, in each direction as far as `max_grid` control
+/// points allow; whether any knot was inserted.
+fn split_knots(
+    knots: &mut [KnotVector; 2],
+    params: &[[Real; 2]],
+    residuals: &[Real],
+    tolerance: Real,
+    max_grid: usize,
+) -> Result<bool, BSplineError> {
+    let spans: Vec<[usize; 2]> = params
+        .par_iter()
+        .map(|uv| std::array::from_fn(|k| knots[k].span(uv[k]).expect("parameters lie in [0, 1]")))
+        .collect();
+    let width = knots[1].knots().len();
+    let mut per_cell = vec![0usize; knots[0].knots().len() * width];
+    for c in &spans {
+        per_cell[c[0] * width + c[1]] += 1;
+    }
+    let mut grown = false;
+    for (k, knot) in knots.iter_mut().enumerate() {
+        let mut marked = vec![false; knot.knots().len()];
+        for (c, r) in spans.iter().zip(residuals) {
+            if *r > tolerance && per_cell[c[0] * width + c[1]] >= MIN_SPLIT_POINTS {
+                marked[c[k]] = true;
             }
         }
-        if !grown {
-            return finish(Some(false));
+        let room = max_grid - knot.num_control_points();
+        let mut count = 0;
+        for m in marked.iter_mut() {
+            if *m {
+                count += 1;
+                *m = count <= room;
+            }
+        }
+        if marked.iter().any(|m| *m) {
+            *knot = halved(knot, &marked)?;
+            grown = true;
         }
     }
+    Ok(grown)
 }
 
 /// Reads a scan's points: the vertices of a mesh (OBJ, glTF or GLB, by
@@ -603,8 +612,7 @@ impl ScanFit {
         }
         let mut grid = vec![Real::NAN; side * side];
         for (uv, r) in self.params.iter().zip(&self.residuals) {
-            let i = ((uv[0] * side as Real) as usize).min(side - 1);
-            let j = ((uv[1] * side as Real) as usize).min(side - 1);
+            let (i, j) = (cell_of(uv[0], side), cell_of(uv[1], side));
             let cell = &mut grid[j * side + i];
             *cell = if cell.is_nan() { *r } else { cell.max(*r) };
         }
@@ -658,8 +666,7 @@ impl ScanFit {
         let grid = self.surface.eval_grid(&ts, &ts)?;
         let mut occupied = vec![false; side * side];
         for uv in &self.params {
-            let i = ((uv[0] * side as Real) as usize).min(side - 1);
-            let j = ((uv[1] * side as Real) as usize).min(side - 1);
+            let (i, j) = (cell_of(uv[0], side), cell_of(uv[1], side));
             occupied[i * side + j] = true;
         }
         let corner = |i: usize, j: usize| (i * (side + 1) + j) as u32;
@@ -778,13 +785,8 @@ impl ScanFit {
         ];
         if let Some(path) = mesh {
             let triangles = self.mesh(RESIDUAL_SIDE)?;
-            let bytes = match crate::mesh::MeshFormat::from_path(path) {
-                Some(crate::mesh::MeshFormat::Obj) => crate::mesh::format_obj(&triangles).into_bytes(),
-                Some(crate::mesh::MeshFormat::Ply) => {
-                    crate::mesh::encode_ply(&triangles, crate::mesh::PlyEncoding::BinaryLittleEndian)
-                }
-                _ => return Err(bad("mesh", path, "a .obj or .ply file")),
-            };
+            let bytes = crate::mesh::encode_mesh(path, &triangles)
+                .ok_or_else(|| bad("mesh", path, "a .obj or .ply file"))?;
             files.push((path.to_path_buf(), bytes));
         }
         Ok(files)

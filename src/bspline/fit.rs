@@ -79,6 +79,7 @@ pub struct SurfaceFit<'a> {
     knots_v: KnotVector,
     smoothness: Real,
     weights: Option<&'a [Real]>,
+    keep_residuals: bool,
 }
 
 /// A fitted surface and how well it fits.
@@ -88,6 +89,10 @@ pub struct FittedSurface {
     pub surface: BSplineSurface,
     /// Residuals of the samples.
     pub report: FitReport,
+    /// Each sample's residual `‖F(uₛ, vₛ) − fₛ‖`, in the samples' order, when
+    /// [`SurfaceFit::keep_residuals`] asked for them (the report's figures come from the same
+    /// evaluation); empty otherwise.
+    pub residuals: Vec<Real>,
 }
 
 /// Residuals of a fit, as distances `‖F(uₛ, vₛ) − fₛ‖` over all samples (weights ignored, so
@@ -115,6 +120,7 @@ impl<'a> SurfaceFit<'a> {
             knots_v,
             smoothness: 0.0,
             weights: None,
+            keep_residuals: false,
         }
     }
 
@@ -122,6 +128,13 @@ impl<'a> SurfaceFit<'a> {
     /// [`SurfaceFit::fit`].
     pub fn smoothness(mut self, lambda: Real) -> Self {
         self.smoothness = lambda;
+        self
+    }
+
+    /// Keeps every sample's residual in [`FittedSurface::residuals`] (8 bytes a sample), for a
+    /// caller that needs them one by one, without evaluating the surface again.
+    pub fn keep_residuals(mut self) -> Self {
+        self.keep_residuals = true;
         self
     }
 
@@ -185,8 +198,13 @@ impl<'a> SurfaceFit<'a> {
             layout.cols,
             control,
         )?;
-        let report = residuals(&surface, params, points, self.smoothness)?;
-        Ok(FittedSurface { surface, report })
+        let mut kept = vec![0.0; if self.keep_residuals { points.len() } else { 0 }];
+        let report = residuals(&surface, params, points, self.smoothness, &mut kept)?;
+        Ok(FittedSurface {
+            surface,
+            report,
+            residuals: kept,
+        })
     }
 
     fn validate(&self, params: &[[Real; 2]], points: &[Point3<Real>]) -> Result<(), BSplineError> {
@@ -748,25 +766,39 @@ fn second_divided_difference(x0: Real, x1: Real, x2: Real) -> [Real; 3] {
 }
 
 /// Distances between the fitted surface and the samples, summed in fixed chunks so the RMS is
-/// the same on any number of threads.
+/// the same on any number of threads; each sample's distance also written to `kept` unless it
+/// is empty.
 fn residuals(
     surface: &BSplineSurface,
     params: &[[Real; 2]],
     points: &[Point3<Real>],
     smoothness: Real,
+    kept: &mut [Real],
 ) -> Result<FitReport, BSplineError> {
     const CHUNK: usize = 8192;
+    // An empty `kept` gives empty chunks, one per sample chunk, to zip with.
+    let kept_chunks: Vec<&mut [Real]> = if kept.is_empty() {
+        (0..params.len().div_ceil(CHUNK))
+            .map(|_| <&mut [Real]>::default())
+            .collect()
+    } else {
+        kept.chunks_mut(CHUNK).collect()
+    };
     let partial = params
         .par_chunks(CHUNK)
         .zip(points.par_chunks(CHUNK))
+        .zip(kept_chunks)
         .enumerate()
-        .map(|(c, (par, pts))| {
+        .map(|(c, ((par, pts), kept))| {
             let mut fitted = vec![Point3::origin(); par.len()];
             surface.eval_many_into(par, &mut fitted)?;
             let mut sum = 0.0;
             let mut max = (0.0, 0);
             for (k, (a, b)) in fitted.iter().zip(pts).enumerate() {
                 let d2 = (a - b).norm_squared();
+                if let Some(slot) = kept.get_mut(k) {
+                    *slot = d2.sqrt();
+                }
                 sum += d2;
                 if d2 > max.0 {
                     max = (d2, c * CHUNK + k);

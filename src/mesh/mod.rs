@@ -353,10 +353,16 @@ pub fn write_mesh(path: &Path, mesh: &TriangleMesh) -> Result<(), MeshError> {
         file: path.to_path_buf(),
         problem,
     };
-    let bytes = match MeshFormat::from_path(path) {
-        Some(MeshFormat::Obj) => format_obj(mesh).into_bytes(),
-        Some(MeshFormat::Ply) => encode_ply(mesh, PlyEncoding::BinaryLittleEndian),
-        _ => return Err(error(MeshProblem::UnknownFormat)),
-    };
+    let bytes = encode_mesh(path, mesh).ok_or_else(|| error(MeshProblem::UnknownFormat))?;
     crate::io::write_atomically(path, &bytes).map_err(|e| error(e.into()))
+}
+
+/// The bytes [`write_mesh`] writes to `path`: OBJ or binary PLY by its extension; `None` for
+/// any other.
+pub fn encode_mesh(path: &Path, mesh: &TriangleMesh) -> Option<Vec<u8>> {
+    match MeshFormat::from_path(path)? {
+        MeshFormat::Obj => Some(format_obj(mesh).into_bytes()),
+        MeshFormat::Ply => Some(encode_ply(mesh, PlyEncoding::BinaryLittleEndian)),
+        MeshFormat::Gltf => None,
+    }
 }
