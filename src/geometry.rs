@@ -1,6 +1,7 @@
-//! Small geometric helpers that several stages share: bounding boxes and planar polygons.
+//! Small geometric helpers that several stages share: bounding boxes, planar polygons and 2D
+//! affine maps.
 
-use nalgebra::{Matrix2x3, Matrix3, Point, Point2};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Point, Point2, Vector2};
 
 use crate::Real;
 
@@ -76,4 +77,21 @@ pub fn homogeneous(m: &Matrix2x3<Real>) -> Matrix3<Real> {
         0.0,
         1.0,
     )
+}
+
+/// The 2D affine map `x ↦ A x + t` as the 2 × 3 matrix `[A | t]` (a RASL warp).
+///
+/// # Examples
+/// ```
+/// use nalgebra::{Matrix2, Matrix2x3, Vector2};
+/// use splineface::geometry::affine;
+///
+/// let m = affine(&Matrix2::new(1.0, 2.0, 3.0, 4.0), &Vector2::new(5.0, 6.0));
+/// assert_eq!(m, Matrix2x3::new(1.0, 2.0, 5.0, 3.0, 4.0, 6.0));
+/// ```
+pub fn affine(linear: &Matrix2<Real>, shift: &Vector2<Real>) -> Matrix2x3<Real> {
+    let mut m = Matrix2x3::zeros();
+    m.fixed_view_mut::<2, 2>(0, 0).copy_from(linear);
+    m.set_column(2, shift);
+    m
 }

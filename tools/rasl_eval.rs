@@ -21,7 +21,7 @@ use splineface::align::{
     GreyImage, PhotoPoints, RaslOptions, RaslPhoto, apply_affine, procrustes_frontal, rasl_frontal,
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
-use splineface::geometry::homogeneous;
+use splineface::geometry::{affine, homogeneous};
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
 
@@ -48,14 +48,7 @@ fn main() -> anyhow::Result<()> {
         let centre = nalgebra::Vector2::new(100.0, 120.0);
         let t =
             centre + nalgebra::Vector2::new(rng.uniform(-6.0, 6.0), rng.uniform(-6.0, 6.0)) - linear * centre;
-        let m = Matrix2x3::new(
-            linear[(0, 0)],
-            linear[(0, 1)],
-            t.x,
-            linear[(1, 0)],
-            linear[(1, 1)],
-            t.y,
-        );
+        let m = affine(&linear, &t);
         let mut data = Vec::with_capacity(200 * 240);
         for y in 0..240 {
             for x in 0..200 {

@@ -191,12 +191,5 @@ fn fit_affine(from: &[Point2<Real>], to: &SMatrix<Real, POINT_COUNT, 2>) -> Opti
     }
     let linear = cross * spread.try_inverse()?;
     let translation = to_mean - linear * from_mean;
-    Some(Matrix2x3::new(
-        linear[(0, 0)],
-        linear[(0, 1)],
-        translation.x,
-        linear[(1, 0)],
-        linear[(1, 1)],
-        translation.y,
-    ))
+    Some(crate::geometry::affine(&linear, &translation))
 }

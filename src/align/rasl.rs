@@ -283,17 +283,7 @@ fn restore_mean(warps: &mut [Matrix2x3<Real>], initial_mean: &Matrix2x3<Real>) {
     if let Some(inverse) = mean_linear.try_inverse() {
         let g_linear = inverse * start_linear;
         let g_shift = inverse * (initial_mean.column(2) - mean.column(2));
-        let g = Matrix3::new(
-            g_linear[(0, 0)],
-            g_linear[(0, 1)],
-            g_shift.x,
-            g_linear[(1, 0)],
-            g_linear[(1, 1)],
-            g_shift.y,
-            0.0,
-            0.0,
-            1.0,
-        );
+        let g = crate::geometry::homogeneous(&crate::geometry::affine(&g_linear, &g_shift));
         for warp in warps.iter_mut() {
             *warp = from_matrix3(&(crate::geometry::homogeneous(warp) * g));
         }

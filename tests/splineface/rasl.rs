@@ -7,7 +7,7 @@ use splineface::align::{
     rasl_frontal, singular_value_threshold,
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
-use splineface::geometry::homogeneous;
+use splineface::geometry::{affine, homogeneous};
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
 
@@ -62,14 +62,7 @@ fn batch(copies: usize, noise: Real, seed: u64) -> Batch {
             * nalgebra::Matrix2::new(sx, shear, 0.0, sy);
         let shift = nalgebra::Vector2::new(rng.uniform(-6.0, 6.0), rng.uniform(-6.0, 6.0));
         let t = centre.coords + shift - linear * centre.coords;
-        let m = Matrix2x3::new(
-            linear[(0, 0)],
-            linear[(0, 1)],
-            t.x,
-            linear[(1, 0)],
-            linear[(1, 1)],
-            t.y,
-        );
+        let m = affine(&linear, &t);
         let mut image = warped_copy(&base, &m);
         let inverse = homogeneous(&m).try_inverse().unwrap();
         let inverse = inverse.fixed_view::<2, 3>(0, 0).into_owned();
