@@ -10,6 +10,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::{PipelineError, Reconstruction, encode_error};
@@ -284,22 +285,39 @@ impl Reconstruction {
     pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
-        let mut files = self.mesh_files(&mesh)?;
-        files.extend(self.surface_files());
-        files.extend(self.depth_files(&mesh)?);
-        files.push(("curvature.png".into(), self.curvature_png()?));
-        // Where the photos agree, before and after the refinement.
-        if let Some(refinement) = &self.refinement {
-            files.push((
-                "consistency.png".into(),
-                consistency_png(&refinement.map).map_err(encode_error("consistency.png"))?,
-            ));
-        }
-        // RASL's pictures.
-        if let Some(rasl) = &self.rasl {
-            for (name, bytes) in rasl.images().map_err(encode_error("aligned/"))? {
-                files.push((PathBuf::from("aligned").join(name), bytes));
-            }
+        // The files are independent: encoded side by side (most encoders run on one core),
+        // listed in this order.
+        type Part<'a> = Box<dyn Fn() -> Result<Files, PipelineError> + Send + Sync + 'a>;
+        let parts: Vec<Part<'_>> = vec![
+            Box::new(|| self.mesh_files(&mesh)),
+            Box::new(|| self.texture_files()),
+            Box::new(|| Ok(self.surface_files())),
+            Box::new(|| self.depth_files(&mesh)),
+            Box::new(|| Ok(vec![("curvature.png".into(), self.curvature_png()?)])),
+            // Where the photos agree, before and after the refinement.
+            Box::new(|| {
+                let Some(refinement) = &self.refinement else {
+                    return Ok(Vec::new());
+                };
+                let png = consistency_png(&refinement.map).map_err(encode_error("consistency.png"))?;
+                Ok(vec![("consistency.png".into(), png)])
+            }),
+            // RASL's pictures.
+            Box::new(|| {
+                let Some(rasl) = &self.rasl else {
+                    return Ok(Vec::new());
+                };
+                let images = rasl.images().map_err(encode_error("aligned/"))?;
+                Ok(images
+                    .into_iter()
+                    .map(|(name, bytes)| (PathBuf::from("aligned").join(name), bytes))
+                    .collect())
+            }),
+        ];
+        let parts: Vec<Result<Files, PipelineError>> = parts.par_iter().map(|part| part()).collect();
+        let mut files = Vec::new();
+        for part in parts {
+            files.extend(part?);
         }
         let structure =
             serde_json::to_vec_pretty(&self.structure_file()).map_err(encode_error("structure.json"))?;
@@ -327,18 +345,6 @@ impl Reconstruction {
                     encode_glb(mesh, "face", Some(PngTexture { png: &png })),
                 ));
                 files.push(("face.png".into(), png));
-                files.push((
-                    "texture-confidence.png".into(),
-                    encode_png(&texture.confidence_image())
-                        .map_err(encode_error("texture-confidence.png"))?,
-                ));
-                let turntable = texture
-                    .turntable(&self.mesh)
-                    .map_err(encode_error("turntable.png"))?;
-                files.push((
-                    "turntable.png".into(),
-                    encode_png(&turntable).map_err(encode_error("turntable.png"))?,
-                ));
             }
             None => {
                 files.push(("face.obj".into(), crate::mesh::format_obj(mesh).into_bytes()));
@@ -350,6 +356,25 @@ impl Reconstruction {
             encode_ply(mesh, PlyEncoding::BinaryLittleEndian),
         ));
         Ok(files)
+    }
+
+    /// With a texture: `texture-confidence.png` and `turntable.png`.
+    fn texture_files(&self) -> Result<Files, PipelineError> {
+        let Some(texture) = &self.texture else {
+            return Ok(Vec::new());
+        };
+        let confidence =
+            encode_png(&texture.confidence_image()).map_err(encode_error("texture-confidence.png"))?;
+        let turntable = texture
+            .turntable(&self.mesh)
+            .map_err(encode_error("turntable.png"))?;
+        Ok(vec![
+            ("texture-confidence.png".into(), confidence),
+            (
+                "turntable.png".into(),
+                encode_png(&turntable).map_err(encode_error("turntable.png"))?,
+            ),
+        ])
     }
 
     /// `surface.json` and `surface.step`: the exact surface in output units, the STEP file with
