@@ -254,7 +254,8 @@ fn to_srgb(c: f32) -> u8 {
 fn sample(image: &RgbImage, table: &[f32; 256], p: Point2<Real>) -> [f32; 3] {
     let (w, h) = (image.width() as usize, image.height() as usize);
     let (x, y) = (p.x.clamp(0.0, (w - 1) as Real), p.y.clamp(0.0, (h - 1) as Real));
-    let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+    // Truncation is the floor here (x, y ≥ 0), and no call into libm on baseline x86-64.
+    let (x0, y0) = (x as usize, y as usize);
     let (fx, fy) = ((x - x0 as Real) as f32, (y - y0 as Real) as f32);
     let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
     let raw = image.as_raw();
@@ -519,11 +520,12 @@ impl DepthBuffer {
 
     /// The front-most key at image point `p` (NaN where nothing was drawn).
     fn front(&self, p: Point2<Real>) -> Real {
+        // The nearest cell, halves rounded up (truncation of a non-negative value is its floor).
         let (x, y) = (
-            ((p.x - self.origin.x) / self.cell).round(),
-            ((p.y - self.origin.y) / self.cell).round(),
+            (p.x - self.origin.x) / self.cell + 0.5,
+            (p.y - self.origin.y) / self.cell + 0.5,
         );
-        if x < 0.0 || y < 0.0 || x as usize >= self.width || y as usize >= self.height {
+        if !(x >= 0.0 && y >= 0.0) || x as usize >= self.width || y as usize >= self.height {
             return Real::NAN;
         }
         self.keys[y as usize * self.width + x as usize]
