@@ -481,7 +481,7 @@ impl ShapePredictor {
                     ];
                     let q = to_image(frame, p);
                     // dlib rounds to the nearest pixel.
-                    f32::from(image.get((q[0] + 0.5).floor() as i64, (q[1] + 0.5).floor() as i64))
+                    f32::from(image.get(nearest(q[0]), nearest(q[1])))
                 }));
             }
             for tree in &cascade.trees {
@@ -519,6 +519,12 @@ impl ShapePredictor {
             })
             .collect()
     }
+}
+
+/// `⌊x + ½⌋`, by truncation where that is the floor (no call into libm on baseline x86-64).
+fn nearest(x: f32) -> i64 {
+    let x = x + 0.5;
+    if x >= 0.0 { x as i64 } else { x.floor() as i64 }
 }
 
 /// The linear part `c·R` of the least-squares similarity taking `from` onto `to` (Umeyama

@@ -190,7 +190,8 @@ impl GreyImage {
         let (w, h) = (self.width, self.height);
         let xc = x.clamp(0.0, (w - 1) as Real);
         let yc = y.clamp(0.0, (h - 1) as Real);
-        let (x0, y0) = (xc.floor() as usize, yc.floor() as usize);
+        // Truncation is the floor here (xc, yc ≥ 0), and no call into libm on baseline x86-64.
+        let (x0, y0) = (xc as usize, yc as usize);
         let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
         let (fx, fy) = ((xc - x0 as Real) as f32, (yc - y0 as Real) as f32);
         let top = values[y0 * w + x0] * (1.0 - fx) + values[y0 * w + x1] * fx;

@@ -545,7 +545,8 @@ impl LevelImage {
         let inside = self.contains(at);
         let x = at.x.clamp(0.0, (self.width - 1) as Real);
         let y = at.y.clamp(0.0, (self.height - 1) as Real);
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        // Truncation is the floor here (x, y ≥ 0), and no call into libm on baseline x86-64.
+        let (x0, y0) = (x as usize, y as usize);
         let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
         let (fx, fy) = (x - x0 as Real, y - y0 as Real);
         let at = |v: &[f32]| {
