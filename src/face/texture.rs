@@ -1149,3 +1149,61 @@ pub fn bake_texture(
         shares,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bspline::{BSplineSurface, KnotVector};
+    use crate::depth::Pose;
+
+    /// On a flat parallelogram seen by an orthographic camera, a texel's projection, depth key,
+    /// cosine and resolution are affine in `(u, v)`, so the nodes' bilinear interpolation must
+    /// give every texel exactly what the camera gives its surface point; and a texel's pixel
+    /// from the kept node pixels is its look's pixel to the last bit. The atlas's side (99)
+    /// leaves a last node cell narrower than the others.
+    #[test]
+    fn texel_looks_interpolate_the_nodes_exactly_where_the_projection_is_affine() {
+        let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
+        let (origin, a, b) = (
+            Vector3::new(-30.0, -40.0, 5.0),
+            Vector3::new(60.0, 0.0, 6.0),
+            Vector3::new(3.0, 80.0, -4.0),
+        );
+        // Row i is u = i, column j is v = j.
+        let corners = vec![
+            Point3::from(origin),
+            Point3::from(origin + b),
+            Point3::from(origin + a),
+            Point3::from(origin + a + b),
+        ];
+        let surface = BSplineSurface::new(knots.clone(), knots, 2, 2, corners).unwrap();
+        let pose = Pose::from_yaw_pitch_roll_degrees(20.0, -10.0, 5.0, 7.0);
+        let camera = RefinedCamera::orthographic(&pose, Point2::new(30.0, -20.0), (800, 1000));
+        let side = 99;
+        let clip = [
+            Point2::new(-0.1, -0.1),
+            Point2::new(1.1, -0.1),
+            Point2::new(1.1, 1.1),
+            Point2::new(-0.1, 1.1),
+        ];
+        let (texels, nodes) = (Texels::new(side, &clip), Nodes::new(side));
+        assert_eq!(nodes.at[nodes.count() - 2..], [96, 98]);
+        let at_nodes = NodeSurface::new(&surface, &nodes).unwrap();
+        let looks = at_nodes.looks(&camera, &nodes, &texels);
+        let pixels: Vec<Point2<Real>> = looks.iter().map(|l| l.unwrap().pixel).collect();
+        let normal = a.cross(&b).normalize();
+        for k in (0..side * side).step_by(7) {
+            let [u, v] = texels.param(k);
+            let truth = camera.look(&surface.eval(u, v).unwrap(), &normal).unwrap();
+            let look = texel_look(&nodes, &looks, k).unwrap();
+            assert!(
+                (look.pixel - truth.pixel).norm() < 1e-9,
+                "texel {k}: {look:?} against {truth:?}"
+            );
+            assert!((look.key - truth.key).abs() < 1e-9, "texel {k}");
+            assert!((look.cos - truth.cos).abs() < 1e-12, "texel {k}");
+            assert!((look.resolution - truth.resolution).abs() < 1e-12, "texel {k}");
+            assert_eq!(texel_pixel(nodes.corners(k), &pixels), look.pixel, "texel {k}");
+        }
+    }
+}
