@@ -233,33 +233,39 @@ fn check_options(options: &RaslOptions) -> Result<(), AlignError> {
 /// Each usable photo's two columns (the photo, then its mirror image with its points mirrored
 /// and relabelled), with the usable photos' names and the others' reasons.
 fn columns_of(photos: &[RaslPhoto], options: &RaslOptions) -> (Vec<Column>, Vec<String>, Vec<Dropped>) {
+    // Each photo's two columns are cut out side by side (the crops and their gradients are
+    // copies of a few megabytes each), then listed in the photos' order.
+    let window = (options.width, options.height);
+    let made: Vec<Result<[Column; 2], Dropped>> = photos
+        .par_iter()
+        .map(|photo| {
+            check(photo).map_err(|reason| Dropped {
+                name: photo.points.name.clone(),
+                reason,
+            })?;
+            let w = (photo.image.width() - 1) as Real;
+            let mirrored_points: Vec<Point2<Real>> = structure::POINTS
+                .iter()
+                .map(|def| {
+                    let p = photo.points.points[def.mirror];
+                    Point2::new(w - p.x, p.y)
+                })
+                .collect();
+            Ok([
+                Column::new(&photo.image, false, photo.points.points.clone(), window),
+                Column::new(&photo.image, true, mirrored_points, window),
+            ])
+        })
+        .collect();
     let mut dropped = Vec::new();
     let mut kept = Vec::new();
     let mut columns = Vec::new();
-    for photo in photos {
-        match check(photo) {
-            Err(reason) => dropped.push(Dropped {
-                name: photo.points.name.clone(),
-                reason,
-            }),
-            Ok(()) => {
+    for (photo, made) in photos.iter().zip(made) {
+        match made {
+            Err(d) => dropped.push(d),
+            Ok(pair) => {
                 kept.push(photo.points.name.clone());
-                let w = (photo.image.width() - 1) as Real;
-                let mirrored_points: Vec<Point2<Real>> = structure::POINTS
-                    .iter()
-                    .map(|def| {
-                        let p = photo.points.points[def.mirror];
-                        Point2::new(w - p.x, p.y)
-                    })
-                    .collect();
-                let window = (options.width, options.height);
-                columns.push(Column::new(
-                    &photo.image,
-                    false,
-                    photo.points.points.clone(),
-                    window,
-                ));
-                columns.push(Column::new(&photo.image, true, mirrored_points, window));
+                columns.extend(pair);
             }
         }
     }
