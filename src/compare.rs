@@ -34,6 +34,7 @@ use nalgebra::{
 use serde::Serialize;
 
 use crate::Real;
+use crate::bspline::{BSplineSurface, ClosestPoints as ClosestSurfacePoints};
 use crate::error::SettingError;
 use crate::face::MeanFace;
 use crate::io::EncodeError;
@@ -136,6 +137,10 @@ pub struct MeshFiles {
     pub landmarks: Option<(PathBuf, PathBuf)>,
     /// The units of the reconstruction's and the truth's coordinates.
     pub units: (LengthUnit, LengthUnit),
+    /// The reconstruction's exact surface (its `surface.json`, in the reconstruction's frame
+    /// and units), to score the inner face against it as well as against the mesh
+    /// ([`FileComparison::inner_face_surface`]; with `landmarks` only).
+    pub surface: Option<PathBuf>,
 }
 
 /// [`compare_files`]' answer.
@@ -146,6 +151,10 @@ pub struct FileComparison {
     /// The unchanged mean face ([`crate::face::MeanFace`], the embedded reference) scored
     /// against the same truth the same way, when the landmarks are given.
     pub mean_face: Option<InnerFaceScore>,
+    /// The inner face scored against the reconstruction's exact surface
+    /// ([`inner_face_score_to_surface`]), mm: when [`MeshFiles::surface`] and the landmarks
+    /// are given.
+    pub inner_face_surface: Option<InnerFaceScore>,
 }
 
 /// Compares two mesh files: reads them and their landmark files, scales both to millimetres,
@@ -160,6 +169,10 @@ pub fn compare_files(files: &MeshFiles, options: &CompareOptions) -> Result<File
     options.validate()?;
     let rec = crate::mesh::read_mesh(&files.reconstruction)?;
     let truth = crate::mesh::read_mesh(&files.truth)?;
+    let surface = match &files.surface {
+        Some(path) => Some(BSplineSurface::read_json(path)?),
+        None => None,
+    };
     let structures = match &files.landmarks {
         Some((a, b)) => Some((read_mesh_structure(a, &rec)?, read_mesh_structure(b, &truth)?)),
         None => None,
@@ -181,6 +194,19 @@ pub fn compare_files(files: &MeshFiles, options: &CompareOptions) -> Result<File
         structures.as_ref().map(|(a, b)| (a.as_slice(), b.as_slice())),
         options,
     )?;
+    let inner_face_surface = match (&surface, &structures) {
+        (Some(surface), Some((rec_structure, truth_structure))) => {
+            let surface = surface.transformed(&to_mm(scale_a));
+            let scored = inner_face_score_to_surface(
+                (&rec, &surface),
+                &truth,
+                (rec_structure.as_slice(), truth_structure.as_slice()),
+                &InnerFaceOptions::default(),
+            )?;
+            Some(scored.score)
+        }
+        _ => None,
+    };
     let mean_face = match &structures {
         Some((_, truth_structure)) => {
             let mean = MeanFace::new(
@@ -203,6 +229,7 @@ pub fn compare_files(files: &MeshFiles, options: &CompareOptions) -> Result<File
     Ok(FileComparison {
         comparison,
         mean_face,
+        inner_face_surface,
     })
 }
 
@@ -284,6 +311,13 @@ pub enum CompareError {
     /// A mesh could not be built (should not happen for valid input).
     #[error("the aligned mesh: {message}")]
     Mesh {
+        /// Why.
+        message: String,
+    },
+    /// The closest points of a surface could not be found (should not happen for a valid
+    /// surface).
+    #[error("the closest points of the reconstruction's surface: {message}")]
+    Surface {
         /// Why.
         message: String,
     },
@@ -874,6 +908,53 @@ pub fn inner_face_score(
     structures: Structures<'_>,
     options: &InnerFaceOptions,
 ) -> Result<InnerFaceComparison, CompareError> {
+    let index = ClosestPoints::new(reconstruction);
+    let closest = |points: &[Point3<Real>]| {
+        Ok(index
+            .closest_many(points)
+            .iter()
+            .map(|c| (c.point, c.distance))
+            .collect())
+    };
+    score_inner_face(reconstruction, truth, structures, options, closest)
+}
+
+/// [`inner_face_score`] against the reconstruction's exact B-spline surface (its
+/// `surface.json`, in the reconstruction's frame and millimetres): the alignment's refinement
+/// and the distances find the closest points on `surface` by point inversion
+/// ([`crate::bspline::ClosestPoints`]) instead of on the mesh that tessellates it, whose flat
+/// triangles cut under a curved face by their chord error. The surface counts over its whole
+/// parameter domain, which reaches past the mesh's clip outline (near the outline a sample
+/// may find the surface nearer than the mesh); the coverage is still the mesh's.
+///
+/// # Errors
+/// As [`inner_face_score`], and [`CompareError::Surface`] if the inversion fails (it does
+/// not for a valid surface).
+pub fn inner_face_score_to_surface(
+    (reconstruction, surface): (&TriangleMesh, &BSplineSurface),
+    truth: &TriangleMesh,
+    structures: Structures<'_>,
+    options: &InnerFaceOptions,
+) -> Result<InnerFaceComparison, CompareError> {
+    let index = ClosestSurfacePoints::new(surface);
+    let closest = |points: &[Point3<Real>]| {
+        let found = index.closest_many(points).map_err(|e| CompareError::Surface {
+            message: e.to_string(),
+        })?;
+        Ok(found.iter().map(|c| (c.point, c.distance)).collect())
+    };
+    score_inner_face(reconstruction, truth, structures, options, closest)
+}
+
+/// [`inner_face_score`] with the reconstruction's closest points (point, distance) to a batch
+/// of points found by `closest`.
+fn score_inner_face(
+    reconstruction: &TriangleMesh,
+    truth: &TriangleMesh,
+    structures: Structures<'_>,
+    options: &InnerFaceOptions,
+    closest: impl Fn(&[Point3<Real>]) -> Result<Vec<(Point3<Real>, Real)>, CompareError>,
+) -> Result<InnerFaceComparison, CompareError> {
     let (rec, tru) = structures;
     check_structure(rec, "reconstruction")?;
     check_structure(tru, "truth")?;
@@ -947,7 +1028,6 @@ pub fn inner_face_score(
     })?;
 
     // Refine: the samples are moved into the reconstruction's frame, whose index stays fixed.
-    let index = ClosestPoints::new(reconstruction);
     let keep = ((samples.len() as Real) * (1.0 - options.trim)).ceil().max(3.0) as usize;
     let mut iterations = 0;
     let mut previous = Real::INFINITY;
@@ -955,11 +1035,11 @@ pub fn inner_face_score(
         iterations += 1;
         let inverse = map.inverse();
         let moved: Vec<Point3<Real>> = samples.iter().map(|p| inverse * p).collect();
-        let found = index.closest_many(&moved);
+        let found = closest(&moved)?;
         let mut order: Vec<usize> = (0..samples.len()).collect();
-        order.sort_unstable_by(|&a, &b| found[a].distance.total_cmp(&found[b].distance));
+        order.sort_unstable_by(|&a, &b| found[a].1.total_cmp(&found[b].1));
         order.truncate(keep);
-        let from: Vec<Point3<Real>> = order.iter().map(|&k| found[k].point).collect();
+        let from: Vec<Point3<Real>> = order.iter().map(|&k| found[k].0).collect();
         let to: Vec<Point3<Real>> = order.iter().map(|&k| samples[k]).collect();
         let Some((next, rms)) = fit_similarity(&from, &to) else {
             break;
@@ -976,9 +1056,9 @@ pub fn inner_face_score(
     let scale = map.scaling();
     let mut distances = vec![Real::NAN; width * height];
     let mut values = Vec::with_capacity(samples.len());
-    for (slot, found) in slots.iter().zip(index.closest_many(&moved)) {
-        distances[*slot] = scale * found.distance;
-        values.push(scale * found.distance);
+    for (slot, (_, distance)) in slots.iter().zip(closest(&moved)?) {
+        distances[*slot] = scale * distance;
+        values.push(scale * distance);
     }
     let aligned = TriangleMesh::new(
         reconstruction.positions().iter().map(|p| map * p).collect(),

@@ -99,6 +99,9 @@ pub enum Error {
     /// The B-spline kernel.
     #[error(transparent)]
     BSpline(#[from] crate::bspline::BSplineError),
+    /// A surface file ([`crate::bspline::BSplineSurface::read_json`]).
+    #[error(transparent)]
+    SurfaceFile(#[from] crate::bspline::SurfaceFileError),
     /// The 2D alignment of the photos.
     #[error(transparent)]
     Align(#[from] crate::align::AlignError),

@@ -57,7 +57,7 @@ pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};
 pub use space::{SpaceSamples, SurfaceSpace};
 pub use step::{StepOptions, encode_step};
-pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives};
+pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives, SurfaceFileError};
 
 use crate::Real;
 

@@ -593,6 +593,49 @@ impl BSplineSurface {
     pub fn from_json(json: &str) -> Result<Self, serde_json::Error> {
         serde_json::from_str(json)
     }
+
+    /// Reads a surface file written by [`BSplineSurface::to_json`] (a reconstruction's
+    /// `surface.json`), with an error that names the file.
+    ///
+    /// # Errors
+    /// [`SurfaceFileError`] when the file cannot be read (or is larger than
+    /// [`crate::io::MAX_DATA_INPUT_BYTES`]) or is not a valid surface.
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    /// use nalgebra::Point3;
+    ///
+    /// let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
+    /// let corners = [(0.0, 0.0), (0.0, 1.0), (1.0, 0.0), (1.0, 1.0)];
+    /// let points = corners.iter().map(|&(u, v)| Point3::new(u, v, 0.0)).collect();
+    /// let square = BSplineSurface::new(knots.clone(), knots, 2, 2, points).unwrap();
+    /// let path = std::env::temp_dir().join("splineface-doc-square.json");
+    /// std::fs::write(&path, square.to_json()).unwrap();
+    /// assert_eq!(BSplineSurface::read_json(&path).unwrap(), square);
+    /// std::fs::write(&path, "{}").unwrap();
+    /// let error = BSplineSurface::read_json(&path).unwrap_err().to_string();
+    /// assert!(error.contains("splineface-doc-square.json"), "{error}");
+    /// ```
+    pub fn read_json(path: &std::path::Path) -> Result<Self, SurfaceFileError> {
+        let problem = |problem: String| SurfaceFileError {
+            path: path.to_owned(),
+            problem,
+        };
+        let text = crate::io::read_input_text(path, crate::io::MAX_DATA_INPUT_BYTES)
+            .map_err(|e| problem(format!("cannot read it: {e}")))?;
+        Self::from_json(&text).map_err(|e| problem(format!("not a splineface surface: {e}")))
+    }
+}
+
+/// A surface file that cannot be read ([`BSplineSurface::read_json`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{}: {problem}", path.display())]
+pub struct SurfaceFileError {
+    /// The file.
+    pub path: std::path::PathBuf,
+    /// What is wrong with it.
+    pub problem: String,
 }
 
 /// Whether `(u, v)` lies in the domain of the knot vectors, or the error that says why not.

@@ -6,7 +6,9 @@ use std::path::PathBuf;
 
 use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
 use splineface::Real;
-use splineface::compare::{CompareError, CompareOptions, compare, fit_similarity};
+use splineface::compare::{
+    CompareError, CompareOptions, LengthUnit, MeshFiles, compare, compare_files, fit_similarity,
+};
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::mesh::{TriangleMesh, write_mesh};
 use splineface::reference::ReferenceFace;
@@ -342,4 +344,74 @@ fn the_commands_write_their_files_and_refuse_bad_input() {
     }
     assert!(!dir.join("bad.exr").exists() && !dir.join("o2").exists() && !dir.join("o3").exists());
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A coarse mesh of a face scored against a fine mesh of the same surface: over the inner face
+/// the truth's samples lie on the surface to the fine mesh's chord error, so their distances to
+/// the exact surface (point inversion, `--reconstruction-surface`) are a small fraction of
+/// those to the coarse mesh, whose flat triangles cut under the curved face. The surface is
+/// given in centimetres like its mesh, and scaled with it. A bad surface file is named.
+#[test]
+fn the_inner_face_is_scored_against_the_exact_surface() {
+    let dir = scratch("compare", "surface");
+    let r = ReferenceFace::embedded();
+    let face = FaceSurface::deform(r, r.structure(), Deformation::Affine).unwrap();
+    let (mm, cm) = (63.0 / 50.0, 63.0 / 500.0);
+    let scaled = |s: Real| {
+        nalgebra::Affine3::from_matrix_unchecked(nalgebra::Matrix4::new_nonuniform_scaling(&Vector3::repeat(
+            s,
+        )))
+    };
+    let fine = face.mesh(&MeshOptions { spacing: 0.75 }).unwrap().mesh;
+    let coarse = face.mesh(&MeshOptions { spacing: 6.0 }).unwrap().mesh;
+    write_mesh(&dir.join("truth.ply"), &fine.transformed(&scaled(mm))).unwrap();
+    write_mesh(&dir.join("coarse.ply"), &coarse.transformed(&scaled(cm))).unwrap();
+    std::fs::write(
+        dir.join("surface.json"),
+        face.surface().transformed(&scaled(cm)).to_json(),
+    )
+    .unwrap();
+    let structure = |s: Real| landmarks_json(&r.structure().iter().map(|p| p * s).collect::<Vec<_>>());
+    std::fs::write(dir.join("truth.json"), structure(mm)).unwrap();
+    std::fs::write(dir.join("coarse.json"), structure(cm)).unwrap();
+    let files = MeshFiles {
+        reconstruction: dir.join("coarse.ply"),
+        truth: dir.join("truth.ply"),
+        landmarks: Some((dir.join("coarse.json"), dir.join("truth.json"))),
+        units: (LengthUnit::Centimetre, LengthUnit::Millimetre),
+        surface: Some(dir.join("surface.json")),
+    };
+    let result = compare_files(&files, &CompareOptions::default()).unwrap();
+    let to_mesh = result.comparison.stats.inner_face.unwrap().distance;
+    let to_surface = result.inner_face_surface.unwrap().distance;
+    assert!(to_surface.mean < 0.01, "to the surface: {to_surface:?}");
+    assert!(
+        to_mesh.mean > 5.0 * to_surface.mean,
+        "to the mesh: {to_mesh:?}, to the surface: {to_surface:?}"
+    );
+    // Without the landmarks there is no inner face to score, with or without the surface.
+    let result = compare_files(
+        &MeshFiles {
+            landmarks: None,
+            ..files.clone()
+        },
+        &CompareOptions::default(),
+    )
+    .unwrap();
+    assert!(result.inner_face_surface.is_none());
+
+    std::fs::write(dir.join("bad.json"), "{\"format\": \"something else\"}").unwrap();
+    let error = compare_files(
+        &MeshFiles {
+            surface: Some(dir.join("bad.json")),
+            ..files
+        },
+        &CompareOptions::default(),
+    )
+    .unwrap_err();
+    assert!(matches!(error, splineface::Error::SurfaceFile(_)), "{error}");
+    assert!(
+        error.to_string().contains("bad.json: not a splineface surface"),
+        "{error}"
+    );
 }

@@ -40,6 +40,7 @@ fn compare_files_checks_its_options_before_reading_anything() {
         truth: "/nowhere/b.obj".into(),
         landmarks: None,
         units: (LengthUnit::Millimetre, LengthUnit::Millimetre),
+        surface: None,
     };
     let error = compare_files(
         &files,
@@ -75,6 +76,7 @@ fn compare_files_scales_by_the_units_and_scores_the_mean_face() {
         truth: cm.clone(),
         landmarks: None,
         units: (LengthUnit::Millimetre, LengthUnit::Centimetre),
+        surface: None,
     };
     let result = compare_files(&files, &CompareOptions::default()).unwrap();
     assert!(
@@ -106,6 +108,7 @@ fn a_comparison_writes_its_files_with_the_extra_figures() {
         truth: a,
         landmarks: None,
         units: (LengthUnit::Millimetre, LengthUnit::Millimetre),
+        surface: None,
     };
     let result = compare_files(&files, &CompareOptions::default()).unwrap();
     let mut extra = serde_json::Map::new();

@@ -254,6 +254,10 @@ pub(crate) struct CompareArgs {
     /// The truth's landmarks (as above).
     #[arg(long, requires = "reconstruction_landmarks")]
     pub(crate) truth_landmarks: Option<PathBuf>,
+    /// The reconstruction's exact surface (its `surface.json`, same frame and units): the inner
+    /// face is also scored against it, by point inversion (needs the landmarks).
+    #[arg(long, requires = "reconstruction_landmarks")]
+    pub(crate) reconstruction_surface: Option<PathBuf>,
     /// Units of the reconstruction's coordinates: mm, cm or m.
     #[arg(long, default_value = "mm")]
     pub(crate) reconstruction_units: String,

@@ -242,6 +242,7 @@ fn compare(a: &CompareArgs) -> Result<()> {
         reconstruction: a.reconstruction.clone(),
         truth: a.truth.clone(),
         landmarks: a.reconstruction_landmarks.clone().zip(a.truth_landmarks.clone()),
+        surface: a.reconstruction_surface.clone(),
         units: (
             length_unit(&a.reconstruction_units, "--reconstruction-units")?,
             length_unit(&a.truth_units, "--truth-units")?,
@@ -260,6 +261,7 @@ fn compare(a: &CompareArgs) -> Result<()> {
     let FileComparison {
         comparison: result,
         mean_face,
+        inner_face_surface,
     } = compare_files(&files, &options)?;
     let elapsed = start.elapsed();
     let mut extra = serde_json::Map::new();
@@ -271,6 +273,13 @@ fn compare(a: &CompareArgs) -> Result<()> {
     extra.insert("units".into(), "mm".into());
     extra.insert("heatmap_max".into(), result.heatmap_max.into());
     extra.insert("inner_face_mean_face".into(), serde_json::to_value(mean_face)?);
+    if let Some(path) = &files.surface {
+        extra.insert("surface".into(), path.display().to_string().into());
+        extra.insert(
+            "inner_face_surface".into(),
+            serde_json::to_value(inner_face_surface)?,
+        );
+    }
     write_into(&a.out, &result.files(extra, true)?)?;
     let s = &result.stats;
     println!("{}", a.out.display());
@@ -312,15 +321,18 @@ fn compare(a: &CompareArgs) -> Result<()> {
             f.distance.mean / m.distance.mean
         );
     }
+    if let Some(f) = inner_face_surface {
+        println!(
+            "  exact surface  mean {:.3}, median {:.3}, 90% {:.3} (the inner face, to the spline)",
+            f.distance.mean, f.distance.median, f.distance.p90
+        );
+    }
     println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
     Ok(())
 }
 
 fn inspect(path: &Path) -> Result<()> {
-    let text = splineface::io::read_input_text(path, splineface::io::MAX_DATA_INPUT_BYTES)
-        .with_context(|| format!("cannot read {}", path.display()))?;
-    let surface = BSplineSurface::from_json(&text)
-        .with_context(|| format!("{} is not a valid B-spline surface", path.display()))?;
+    let surface = BSplineSurface::read_json(path)?;
     let (u0, u1) = surface.domain_u();
     let (v0, v1) = surface.domain_v();
     println!("{}", path.display());
