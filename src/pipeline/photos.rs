@@ -593,6 +593,7 @@ impl PhotoSet {
             *bytes = serde_json::to_vec_pretty(&report).map_err(encode)?;
         }
         files.extend(photo_outputs);
+        let page_start = Instant::now();
         let page = crate::report::report_page(
             &files,
             &crate::report::PageOptions {
@@ -606,6 +607,19 @@ impl PhotoSet {
                 comparison: None,
             },
         );
+        let page_ms = 1e3 * page_start.elapsed().as_secs_f64();
+        // The page's own time goes into report.json only: the page, made from it, cannot show it.
+        if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
+            let encode = |e: serde_json::Error| PipelineError::Encode {
+                file: "report.json".into(),
+                message: e.to_string(),
+            };
+            let mut report: serde_json::Value = serde_json::from_slice(bytes).map_err(encode)?;
+            if let Some(list) = report["timings"].as_array_mut() {
+                list.push(serde_json::json!({ "stage": "report page", "ms": page_ms }));
+            }
+            *bytes = serde_json::to_vec_pretty(&report).map_err(encode)?;
+        }
         files.push(("report.html".into(), page.into_bytes()));
         Ok(files)
     }

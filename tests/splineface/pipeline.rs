@@ -333,6 +333,20 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(report["photos_used"].as_array().unwrap().len(), 3, "{report}");
+    // Every stage is timed, the page's own last (the page, made from report.json, cannot show
+    // it); the terminal adds the writing.
+    let stages: Vec<&str> = report["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["stage"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        stages[stages.len() - 2..],
+        ["overlays", "report page"],
+        "{stages:?}"
+    );
+    assert!(String::from_utf8_lossy(&run.stdout).contains("ms  writing the files"));
     let skipped = report["photos_skipped"].to_string();
     for reason in [
         "photo03.png: cannot read the image",

@@ -528,7 +528,9 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
     let result = reconstruct(&set.inputs, &reference, &options, progress)?;
     progress("drawing the overlays and the report page");
     let files = set.files(&result, model_seconds)?;
+    let writing = std::time::Instant::now();
     write_into(out, &files)?;
+    let writing = writing.elapsed();
     for d in &result.dropped {
         progress(&format!("dropped {}: {}", d.name, d.reason));
     }
@@ -575,6 +577,7 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
             }
         }
     }
+    println!("    {:>8.0} ms  writing the files", writing.as_secs_f64() * 1e3);
     Ok(())
 }
 
