@@ -623,7 +623,7 @@ impl BSplineSurface {
             problem,
         };
         let text = crate::io::read_input_text(path, crate::io::MAX_DATA_INPUT_BYTES)
-            .map_err(|e| problem(format!("cannot read it: {e}")))?;
+            .map_err(|e| problem(e.to_string()))?;
         Self::from_json(&text).map_err(|e| problem(format!("not a splineface surface: {e}")))
     }
 }
