@@ -287,14 +287,8 @@ fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
 fn box_distance_squared(node: &Node, p: &Point3<Real>) -> Real {
     let mut d = 0.0;
     for c in 0..3 {
-        let (lo, hi) = (node.lo[c], node.hi[c]);
-        let excess = if p[c] < lo {
-            lo - p[c]
-        } else if p[c] > hi {
-            p[c] - hi
-        } else {
-            0.0
-        };
+        // At most one of the two is positive; no branch to mispredict.
+        let excess = (node.lo[c] - p[c]).max(0.0) + (p[c] - node.hi[c]).max(0.0);
         d += excess * excess;
     }
     d
