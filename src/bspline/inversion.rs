@@ -494,11 +494,26 @@ impl<'a> ClosestPoints<'a> {
         {
             return Err(BSplineError::NonFiniteSample { index });
         }
-        Ok(queries
+        // In Morton (Z-order) order of the queries: neighbouring queries then walk the same
+        // parts of the sample tree and the box tree, which stay in cache. Each answer is the
+        // one `closest` gives (nothing is carried from one query to the next).
+        let order = crate::mesh::morton_order(queries);
+        let found: Vec<ClosestPoint> = order
             .par_iter()
             .with_min_len(256)
-            .map(|q| self.search(q))
-            .collect())
+            .map(|&k| self.search(&queries[k as usize]))
+            .collect();
+        let unset = ClosestPoint {
+            u: 0.0,
+            v: 0.0,
+            point: Point3::origin(),
+            distance: 0.0,
+        };
+        let mut answers = vec![unset; queries.len()];
+        for (&k, answer) in order.iter().zip(found) {
+            answers[k as usize] = answer;
+        }
+        Ok(answers)
     }
 
     /// Damped Newton from `start` within `piece`, whose edges act as the domain's.

@@ -258,7 +258,7 @@ fn spread(x: u64) -> u64 {
 }
 
 /// The indices of `points` sorted by their Morton code over the points' bounding box.
-fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
+pub(crate) fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
     let mut lo = Vector3::repeat(Real::INFINITY);
     let mut hi = Vector3::repeat(Real::NEG_INFINITY);
     for p in points.iter().filter(|p| p.iter().all(|c| c.is_finite())) {
