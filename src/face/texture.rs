@@ -549,7 +549,8 @@ impl PhotoView {
     }
 }
 
-/// The texels the colour gains are fitted on: every `step`-th along each side, at most 128².
+/// The texels the colour gains are fitted on: every `step = max(⌊side/128⌋, 1)`-th along each
+/// side (128² to about 255² of them, `side²` for atlases under 256).
 struct GainGrid {
     step: usize,
     count: usize,
