@@ -559,12 +559,7 @@ impl PhotoSet {
                 "ms": 1e3 * seconds,
             }));
         }
-        if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
-            let encode = |e: serde_json::Error| PipelineError::Encode {
-                file: "report.json".into(),
-                message: e.to_string(),
-            };
-            let mut report: serde_json::Value = serde_json::from_slice(bytes).map_err(encode)?;
+        edit_report(&mut files, |report| {
             if !self.skipped.is_empty() {
                 report["photos_skipped"] = self.skipped.clone().into();
             }
@@ -590,8 +585,7 @@ impl PhotoSet {
                     .collect::<Vec<_>>()
                     .into();
             }
-            *bytes = serde_json::to_vec_pretty(&report).map_err(encode)?;
-        }
+        })?;
         files.extend(photo_outputs);
         let page_start = Instant::now();
         let page = crate::report::report_page(
@@ -609,20 +603,33 @@ impl PhotoSet {
         );
         let page_ms = 1e3 * page_start.elapsed().as_secs_f64();
         // The page's own time goes into report.json only: the page, made from it, cannot show it.
-        if let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) {
-            let encode = |e: serde_json::Error| PipelineError::Encode {
-                file: "report.json".into(),
-                message: e.to_string(),
-            };
-            let mut report: serde_json::Value = serde_json::from_slice(bytes).map_err(encode)?;
+        edit_report(&mut files, |report| {
             if let Some(list) = report["timings"].as_array_mut() {
                 list.push(serde_json::json!({ "stage": "report page", "ms": page_ms }));
             }
-            *bytes = serde_json::to_vec_pretty(&report).map_err(encode)?;
-        }
+        })?;
         files.push(("report.html".into(), page.into_bytes()));
         Ok(files)
     }
+}
+
+/// Applies `edit` to `report.json` among `files` (parsed, then written back as before), if it
+/// is there.
+fn edit_report(
+    files: &mut [(PathBuf, Vec<u8>)],
+    edit: impl FnOnce(&mut serde_json::Value),
+) -> Result<(), PipelineError> {
+    let Some((_, bytes)) = files.iter_mut().find(|(p, _)| p == Path::new("report.json")) else {
+        return Ok(());
+    };
+    let encode = |e: serde_json::Error| PipelineError::Encode {
+        file: "report.json".into(),
+        message: e.to_string(),
+    };
+    let mut report: serde_json::Value = serde_json::from_slice(bytes).map_err(encode)?;
+    edit(&mut report);
+    *bytes = serde_json::to_vec_pretty(&report).map_err(encode)?;
+    Ok(())
 }
 
 /// `overlays/NAME.png` for every record with a photo ([`crate::report::draw_overlay`]), and
