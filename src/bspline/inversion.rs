@@ -25,7 +25,6 @@
 //! line sees several boxes within its distance).
 
 use nalgebra::{Point3, Vector3};
-use rayon::prelude::*;
 
 use super::basis::basis_derivatives;
 use super::{BSplineError, BSplineSurface, MAX_DEGREE};
@@ -495,25 +494,11 @@ impl<'a> ClosestPoints<'a> {
             return Err(BSplineError::NonFiniteSample { index });
         }
         // In Morton (Z-order) order of the queries: neighbouring queries then walk the same
-        // parts of the sample tree and the box tree, which stay in cache. Each answer is the
-        // one `closest` gives (nothing is carried from one query to the next).
-        let order = crate::mesh::morton_order(queries);
-        let found: Vec<ClosestPoint> = order
-            .par_iter()
-            .with_min_len(256)
-            .map(|&k| self.search(&queries[k as usize]))
-            .collect();
-        let unset = ClosestPoint {
-            u: 0.0,
-            v: 0.0,
-            point: Point3::origin(),
-            distance: 0.0,
-        };
-        let mut answers = vec![unset; queries.len()];
-        for (&k, answer) in order.iter().zip(found) {
-            answers[k as usize] = answer;
-        }
-        Ok(answers)
+        // parts of the sample tree and the box tree. Each answer is the one `closest` gives
+        // (nothing is carried from one query to the next).
+        Ok(crate::mesh::in_morton_order(queries, 256, |chunk| {
+            chunk.iter().map(|&k| self.search(&queries[k as usize])).collect()
+        }))
     }
 
     /// Damped Newton from `start` within `piece`, whose edges act as the domain's.

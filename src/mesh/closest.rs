@@ -161,35 +161,18 @@ impl ClosestPoints {
     /// is many times faster than querying in random order, where nearly every node visited
     /// misses the cache (see `benches/render.rs`).
     pub fn closest_many(&self, points: &[Point3<Real>]) -> Vec<Closest> {
-        use rayon::prelude::*;
-        let order = morton_order(points);
-        let mut answers = vec![
-            Closest {
-                point: Point3::origin(),
-                distance: 0.0,
-                triangle: 0,
-            };
-            points.len()
-        ];
-        let found: Vec<(u32, Closest)> = order
-            .par_chunks(4096)
-            .flat_map_iter(|chunk| {
-                let mut stack = Vec::with_capacity(64);
-                let mut previous = None;
-                chunk
-                    .iter()
-                    .map(|&k| {
-                        let answer = self.closest_from(&points[k as usize], previous, &mut stack);
-                        previous = Some(answer.triangle);
-                        (k, answer)
-                    })
-                    .collect::<Vec<_>>()
-            })
-            .collect();
-        for (k, answer) in found {
-            answers[k as usize] = answer;
-        }
-        answers
+        in_morton_order(points, 4096, |chunk| {
+            let mut stack = Vec::with_capacity(64);
+            let mut previous = None;
+            chunk
+                .iter()
+                .map(|&k| {
+                    let answer = self.closest_from(&points[k as usize], previous, &mut stack);
+                    previous = Some(answer.triangle);
+                    answer
+                })
+                .collect()
+        })
     }
 
     fn closest_from(&self, p: &Point3<Real>, hint: Option<usize>, stack: &mut Vec<(u32, Real)>) -> Closest {
@@ -257,8 +240,31 @@ fn spread(x: u64) -> u64 {
     (x | x << 2) & 0x1249_2492_4924_9249
 }
 
+/// `answer` for every point, returned in the points' order but run in their Morton order, in
+/// parallel chunks of `chunk` points: `answer` gets a chunk's point indices in that order and
+/// gives one value per index (a chunk's queries run one after another, so it may carry state
+/// from one to the next). Neighbouring queries then touch the same parts of a search structure,
+/// which stay in cache.
+pub(crate) fn in_morton_order<T: Send>(
+    points: &[Point3<Real>],
+    chunk: usize,
+    answer: impl Fn(&[u32]) -> Vec<T> + Sync,
+) -> Vec<T> {
+    use rayon::prelude::*;
+    let order = morton_order(points);
+    let found: Vec<T> = order.par_chunks(chunk).flat_map_iter(&answer).collect();
+    let mut slots: Vec<Option<T>> = std::iter::repeat_with(|| None).take(points.len()).collect();
+    for (&k, value) in order.iter().zip(found) {
+        slots[k as usize] = Some(value);
+    }
+    slots
+        .into_iter()
+        .map(|slot| slot.expect("the Morton order is a permutation of the points"))
+        .collect()
+}
+
 /// The indices of `points` sorted by their Morton code over the points' bounding box.
-pub(crate) fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
+fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
     let mut lo = Vector3::repeat(Real::INFINITY);
     let mut hi = Vector3::repeat(Real::NEG_INFINITY);
     for p in points.iter().filter(|p| p.iter().all(|c| c.is_finite())) {

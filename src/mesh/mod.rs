@@ -27,7 +27,7 @@ mod obj;
 mod ply;
 mod raster;
 
-pub(crate) use closest::morton_order;
+pub(crate) use closest::in_morton_order;
 pub use closest::{Closest, ClosestPoints, closest_on_triangle};
 pub use glb::{MAX_GLB_BYTES, PngTexture, encode_glb, write_glb};
 pub use gltf::parse_gltf;
