@@ -48,6 +48,8 @@ mod refine;
 mod space;
 mod step;
 mod surface;
+#[cfg(target_arch = "x86_64")]
+mod wide;
 
 pub use basis::{basis_derivatives, basis_functions};
 pub use curvature::Curvature;

@@ -440,6 +440,11 @@ impl BSplineSurface {
 
     /// Evaluates the surface at every `[u, v]` of `params`, in parallel (rayon).
     ///
+    /// A bicubic surface on an x86-64 CPU with AVX2 and FMA (found at run time) is evaluated
+    /// in SIMD registers, its sums in another order than [`BSplineSurface::eval`]'s: each
+    /// point agrees with `eval` to about 10⁻¹⁵ of the control points' size (tested to 10⁻¹²).
+    /// Other surfaces and CPUs give `eval`'s values exactly.
+    ///
     /// # Errors
     /// As [`BSplineSurface::eval`], for the first bad parameter in the list; then nothing is
     /// evaluated.
@@ -493,6 +498,19 @@ impl BSplineSurface {
         params: &[[Real; 2]],
         out: &mut [Point3<Real>],
     ) {
+        // A bicubic surface on a CPU with AVX2 and FMA, for a batch at least as long as the
+        // knot vectors (the wide path writes each span's basis as a polynomial first).
+        #[cfg(target_arch = "x86_64")]
+        if NU == 4
+            && NV == 4
+            && params.len() >= self.rows + self.cols
+            && let Some(wide) = super::wide::Bicubic::new(self)
+        {
+            out.par_chunks_mut(BATCH)
+                .zip(params.par_chunks(BATCH))
+                .for_each(|(out, params)| wide.eval_into(params, out));
+            return;
+        }
         // Chunks with a plain loop inside, so that the evaluation inlines into the loop (a
         // per-point closure handed to rayon costs half as much again).
         out.par_chunks_mut(BATCH)

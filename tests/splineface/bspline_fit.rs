@@ -233,9 +233,11 @@ fn residual_report_matches_a_direct_computation() {
         .iter()
         .enumerate()
         .fold((0, 0.0), |a, (i, &x)| if x > a.1 { (i, x) } else { a });
+    // The report evaluates in a batch, which for a bicubic surface sums in SIMD registers
+    // in another order than `eval`: the same to rounding.
     assert!((fitted.report.rms - rms).abs() < 1e-12 * rms.max(1e-300));
-    assert_eq!(fitted.report.max, max);
-    assert_eq!(fitted.report.max_index, imax);
+    assert!((fitted.report.max - max).abs() < 1e-12 * max);
+    assert!((d[fitted.report.max_index] - max).abs() < 1e-12 * max, "{imax}");
     assert!(
         rms > 1e-6,
         "the target is not a spline, so the residual is not zero"

@@ -139,7 +139,13 @@ proptest! {
         for (k, &[u, v]) in params.iter().enumerate() {
             let p = s.eval(u, v).unwrap();
             prop_assert!((grid[k] - p).norm() < 1e-12 * (1.0 + p.coords.norm()), "grid at ({u}, {v})");
-            prop_assert_eq!(batch[k], p);
+            // A bicubic batch runs in SIMD registers, its sums in another order (issue 24:
+            // the same to 1e-12); other degrees are evaluated exactly as `eval` does.
+            if s.degree_u() == 3 && s.degree_v() == 3 {
+                prop_assert!((batch[k] - p).norm() < 1e-12 * (1.0 + p.coords.norm()), "batch at ({u}, {v})");
+            } else {
+                prop_assert_eq!(batch[k], p);
+            }
         }
     }
 
