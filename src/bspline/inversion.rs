@@ -62,17 +62,35 @@ pub struct ClosestPoint {
 /// The point, first and second derivatives at `(u, v)`: `[F, Fᵤ, F_v, Fᵤᵤ, Fᵤ_v, F_vv]`,
 /// without allocating; on a piece's upper edge, the piece's own (one-sided) derivatives.
 fn second_order(surface: &BSplineSurface, u: Real, v: Real, piece: &Piece) -> [Vector3<Real>; 6] {
+    // Tables sized for the degrees (zeroing the largest degree's was measurable); the same
+    // arithmetic either way.
+    if surface.degree_u() <= 3 && surface.degree_v() <= 3 {
+        second_order_in::<4>(surface, u, v, piece)
+    } else {
+        second_order_in::<{ MAX_DEGREE + 1 }>(surface, u, v, piece)
+    }
+}
+
+/// [`second_order`] with tables for degrees below `N`.
+#[inline(always)]
+fn second_order_in<const N: usize>(
+    surface: &BSplineSurface,
+    u: Real,
+    v: Real,
+    piece: &Piece,
+) -> [Vector3<Real>; 6] {
     let (p, q) = (surface.degree_u(), surface.degree_v());
     let su = span_from_within(surface.knots_u(), u, piece.u);
     let sv = span_from_within(surface.knots_v(), v, piece.v);
     let (du, dv) = (2.min(p), 2.min(q));
-    let mut nu = [0.0; 3 * (MAX_DEGREE + 1)];
-    let mut nv = [0.0; 3 * (MAX_DEGREE + 1)];
-    basis_derivatives(surface.knots_u(), su, u, du, &mut nu);
-    basis_derivatives(surface.knots_v(), sv, v, dv, &mut nv);
+    let mut nu = [[0.0; N]; 3];
+    let mut nv = [[0.0; N]; 3];
+    basis_derivatives(surface.knots_u(), su, u, du, nu.as_flattened_mut());
+    basis_derivatives(surface.knots_v(), sv, v, dv, nv.as_flattened_mut());
+    let (nu, nv) = (nu.as_flattened(), nv.as_flattened());
     let (cols, grid) = (surface.cols(), surface.control_points());
     // rows[k][s]: Σᵣ N⁽ᵏ⁾ᵣ(u) b_(su−p+r, sv−q+s), for k = 0, 1, 2.
-    let mut rows = [[Vector3::zeros(); MAX_DEGREE + 1]; 3];
+    let mut rows = [[Vector3::zeros(); N]; 3];
     for r in 0..=p {
         let base = (su - p + r) * cols + sv - q;
         for s in 0..=q {
