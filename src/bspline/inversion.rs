@@ -26,7 +26,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use super::basis::basis_derivatives;
+use super::basis::SpanPolynomials;
 use super::{BSplineError, BSplineSurface, MAX_DEGREE};
 use crate::Real;
 
@@ -60,14 +60,21 @@ pub struct ClosestPoint {
 }
 
 /// The point, first and second derivatives at `(u, v)`: `[F, Fᵤ, F_v, Fᵤᵤ, Fᵤ_v, F_vv]`,
-/// without allocating; on a piece's upper edge, the piece's own (one-sided) derivatives.
-fn second_order(surface: &BSplineSurface, u: Real, v: Real, piece: &Piece) -> [Vector3<Real>; 6] {
-    // Tables sized for the degrees (zeroing the largest degree's was measurable); the same
-    // arithmetic either way.
+/// without allocating; on a piece's upper edge, the piece's own (one-sided) derivatives. The
+/// basis functions come from `basis`' polynomials (`u`, `v`): Horner's rule, where A2.3
+/// divides and clears tables (it was a quarter of the inversion's time).
+fn second_order(
+    surface: &BSplineSurface,
+    basis: [&SpanPolynomials; 2],
+    u: Real,
+    v: Real,
+    piece: &Piece,
+) -> [Vector3<Real>; 6] {
+    // Tables sized for the degrees (zeroing the largest degree's was measurable).
     if surface.degree_u() <= 3 && surface.degree_v() <= 3 {
-        second_order_in::<4>(surface, u, v, piece)
+        second_order_in::<4>(surface, basis, u, v, piece)
     } else {
-        second_order_in::<{ MAX_DEGREE + 1 }>(surface, u, v, piece)
+        second_order_in::<{ MAX_DEGREE + 1 }>(surface, basis, u, v, piece)
     }
 }
 
@@ -75,6 +82,7 @@ fn second_order(surface: &BSplineSurface, u: Real, v: Real, piece: &Piece) -> [V
 #[inline(always)]
 fn second_order_in<const N: usize>(
     surface: &BSplineSurface,
+    [basis_u, basis_v]: [&SpanPolynomials; 2],
     u: Real,
     v: Real,
     piece: &Piece,
@@ -85,8 +93,8 @@ fn second_order_in<const N: usize>(
     let (du, dv) = (2.min(p), 2.min(q));
     let mut nu = [[0.0; N]; 3];
     let mut nv = [[0.0; N]; 3];
-    basis_derivatives(surface.knots_u(), su, u, du, nu.as_flattened_mut());
-    basis_derivatives(surface.knots_v(), sv, v, dv, nv.as_flattened_mut());
+    basis_u.derivatives(su, u, du, nu.as_flattened_mut());
+    basis_v.derivatives(sv, v, dv, nv.as_flattened_mut());
     let (nu, nv) = (nu.as_flattened(), nv.as_flattened());
     let (cols, grid) = (surface.cols(), surface.control_points());
     // rows[k][s]: Σᵣ N⁽ᵏ⁾ᵣ(u) b_(su−p+r, sv−q+s), for k = 0, 1, 2.
@@ -342,6 +350,8 @@ pub struct ClosestPoints<'a> {
     creases_v: Vec<Real>,
     /// Steps that move the surface point less than this have converged.
     tolerance: Real,
+    /// The basis functions of each span in `u` and `v`, for Newton's derivatives.
+    basis: [SpanPolynomials; 2],
 }
 
 /// `SAMPLES_PER_SPAN` parameters a non-empty span of `knots`, the domain's ends included.
@@ -397,6 +407,10 @@ impl<'a> ClosestPoints<'a> {
             // A cell bulges by little more than its diagonal's tenth for the spans sampled.
             reach: 1.1 * reach,
             tolerance: 1e-12 * size,
+            basis: [
+                SpanPolynomials::new(surface.knots_u()),
+                SpanPolynomials::new(surface.knots_v()),
+            ],
         }
     }
 
@@ -524,7 +538,7 @@ impl<'a> ClosestPoints<'a> {
         let s = self.surface;
         let ((u0, u1), (v0, v1)) = (piece.u, piece.v);
         let [mut u, mut v] = start;
-        let mut d = second_order(s, u, v, piece);
+        let mut d = second_order(s, [&self.basis[0], &self.basis[1]], u, v, piece);
         let mut r = d[0] - query.coords;
         let mut f = r.norm_squared();
         for _ in 0..MAX_STEPS {
@@ -562,7 +576,7 @@ impl<'a> ClosestPoints<'a> {
             let mut accepted = false;
             for _ in 0..30 {
                 let (nu, nv) = ((u + step[0]).clamp(u0, u1), (v + step[1]).clamp(v0, v1));
-                let nd = second_order(s, nu, nv, piece);
+                let nd = second_order(s, [&self.basis[0], &self.basis[1]], nu, nv, piece);
                 let nr = nd[0] - query.coords;
                 let nf = nr.norm_squared();
                 // Within rounding of no worse: near the answer `f` stops resolving the steps

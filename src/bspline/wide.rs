@@ -129,43 +129,27 @@ fn lanes(a: f64x4) -> [Real; 4] {
     [a.0, a.1, a.2, a.3]
 }
 
-/// The four cubic basis functions on each span of a knot vector as polynomials in the
-/// span's own parameter `t = (u − uᵢ)/(uᵢ₊₁ − uᵢ) ∈ [0, 1]`: `N_{i−3+r}(u) = Σₖ cₖ[r] tᵏ`, the
-/// coefficients from the functions' derivatives at the span's start
-/// (`cₖ = N⁽ᵏ⁾(uᵢ) hᵏ / k!`, [`super::basis::basis_derivatives`], The NURBS Book A2.3). Four
-/// functions are then three fused multiply-adds in one register (Horner), with no gathering
-/// of knots across points; they agree with the Cox–de Boor recurrence to rounding.
+/// [`super::basis::SpanPolynomials`] of degree 3 as registers: each span's `c₀ … c₃`, each the
+/// four functions' coefficients. Four functions are then three fused multiply-adds in one
+/// register (Horner), where the Cox–de Boor recurrence is a chain of dependent products.
 struct SpanPolynomials {
     /// Per span: `uᵢ` and `1/h`.
     starts: Vec<[Real; 2]>,
-    /// Per span: `c₀ … c₃`, each the four functions' coefficients.
+    /// Per span: `c₀ … c₃`.
     coefficients: Vec<[f64x4; 4]>,
 }
 
 impl SpanPolynomials {
     fn new(knots: &KnotVector) -> Self {
-        let k = knots.knots();
+        let polynomials = super::basis::SpanPolynomials::new(knots);
         let spans = knots.num_control_points();
-        let mut starts = vec![[0.0; 2]; spans];
-        let mut coefficients = vec![[f64x4(0.0, 0.0, 0.0, 0.0); 4]; spans];
-        let mut derivatives = [0.0; 16];
-        // Spans 3 … n − 1 are the non-empty ones a parameter in the domain can fall in.
-        for span in 3..spans {
-            let h = k[span + 1] - k[span];
-            if h <= 0.0 {
-                continue;
-            }
-            super::basis::basis_derivatives(knots, span, k[span], 3, &mut derivatives);
-            let mut scale = 1.0;
-            for (order, c) in coefficients[span].iter_mut().enumerate() {
-                if order > 0 {
-                    scale *= h / order as Real;
-                }
-                let d = &derivatives[4 * order..4 * order + 4];
-                *c = f64x4(d[0] * scale, d[1] * scale, d[2] * scale, d[3] * scale);
-            }
-            starts[span] = [k[span], 1.0 / h];
-        }
+        let starts = (0..spans).map(|span| polynomials.start(span)).collect();
+        let coefficients = (0..spans)
+            .map(|span| {
+                let c = polynomials.coefficients(span);
+                [0, 1, 2, 3].map(|k| f64x4(c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]))
+            })
+            .collect();
         SpanPolynomials { starts, coefficients }
     }
 
