@@ -240,6 +240,7 @@ impl SpanPolynomials {
     }
 
     /// Span `span`'s `uᵢ` and `1/h`.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))] // the AVX2 path's
     #[inline(always)]
     pub(crate) fn start(&self, span: usize) -> [Real; 2] {
         self.starts[span]
