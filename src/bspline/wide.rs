@@ -8,7 +8,7 @@
 //!
 //! Per point:
 //! * the four basis functions in `u` in one register, from their polynomial on the span
-//!   ([`SpanRegisters`]: three fused multiply-adds, where the Cox–de Boor recurrence is a
+//!   ([`cubic_basis`]: three fused multiply-adds, where the Cox–de Boor recurrence is a
 //!   chain of a dozen dependent products); the same in `v`;
 //! * a row of four control points is 12 contiguous coordinates, three registers, so the rows'
 //!   sums `sᵦ = Σₐ Nₐ(u) b_{a,β}` are three fused multiply-adds a row;
@@ -27,7 +27,7 @@ use nalgebra::Point3;
 use pulp::f64x4;
 use pulp::x86::V3;
 
-use super::knots::KnotVector;
+use super::basis::SpanPolynomials;
 use super::surface::BSplineSurface;
 use crate::Real;
 
@@ -35,8 +35,8 @@ use crate::Real;
 pub(crate) struct Bicubic<'a> {
     surface: &'a BSplineSurface,
     /// The basis functions of each span in `u` and in `v` as polynomials.
-    basis_u: SpanRegisters,
-    basis_v: SpanRegisters,
+    basis_u: SpanPolynomials,
+    basis_v: SpanPolynomials,
     simd: V3,
 }
 
@@ -49,8 +49,8 @@ impl<'a> Bicubic<'a> {
         }
         Some(Bicubic {
             surface,
-            basis_u: SpanRegisters::new(surface.knots_u()),
-            basis_v: SpanRegisters::new(surface.knots_v()),
+            basis_u: SpanPolynomials::new(surface.knots_u()),
+            basis_v: SpanPolynomials::new(surface.knots_v()),
             simd,
         })
     }
@@ -75,8 +75,8 @@ impl<'a> Bicubic<'a> {
             surface.knots_u().span_in_domain(u),
             surface.knots_v().span_in_domain(v),
         );
-        let nu = lanes(self.basis_u.at(simd, su, u));
-        let n = lanes(self.basis_v.at(simd, sv, v));
+        let nu = lanes(cubic_basis(simd, &self.basis_u, su, u));
+        let n = lanes(cubic_basis(simd, &self.basis_v, sv, v));
         let cols = surface.cols();
         let first = (su - 3) * cols + sv - 3;
         let points = surface.control_points();
@@ -131,38 +131,21 @@ fn lanes(a: f64x4) -> [Real; 4] {
     [a.0, a.1, a.2, a.3]
 }
 
-/// [`super::basis::SpanPolynomials`] of degree 3 as registers: each span's `c₀ … c₃`, each the
-/// four functions' coefficients. Four functions are then three fused multiply-adds in one
-/// register (Horner), where the Cox–de Boor recurrence is a chain of dependent products.
-struct SpanRegisters {
-    /// Per span: `uᵢ` and `1/h`.
-    starts: Vec<[Real; 2]>,
-    /// Per span: `c₀ … c₃`.
-    coefficients: Vec<[f64x4; 4]>,
-}
-
-impl SpanRegisters {
-    fn new(knots: &KnotVector) -> Self {
-        let polynomials = super::basis::SpanPolynomials::new(knots);
-        let spans = knots.num_control_points();
-        let starts = (0..spans).map(|span| polynomials.start(span)).collect();
-        let coefficients = (0..spans)
-            .map(|span| {
-                let c = polynomials.coefficients(span);
-                [0, 1, 2, 3].map(|k| f64x4(c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]))
-            })
-            .collect();
-        SpanRegisters { starts, coefficients }
-    }
-
-    /// The four functions at `u` on `span`.
-    #[inline(always)]
-    fn at(&self, simd: V3, span: usize, u: Real) -> f64x4 {
-        let [start, inverse] = self.starts[span];
-        let t = simd.splat_f64x4((u - start) * inverse);
-        let [c0, c1, c2, c3] = self.coefficients[span];
-        simd.mul_add_f64x4(simd.mul_add_f64x4(simd.mul_add_f64x4(c3, t, c2), t, c1), t, c0)
-    }
+/// The four cubic basis functions at `u` on `span`, in one register: Horner's rule over the
+/// span's polynomial coefficients `c₀ … c₃` (each the four functions', contiguous: one load a
+/// register), three fused multiply-adds where the Cox–de Boor recurrence is a chain of
+/// dependent products.
+#[inline(always)]
+fn cubic_basis(simd: V3, polynomials: &SpanPolynomials, span: usize, u: Real) -> f64x4 {
+    let [start, inverse] = polynomials.start(span);
+    let t = simd.splat_f64x4((u - start) * inverse);
+    let c: &[Real; 16] = polynomials.coefficients(span).try_into().expect("degree 3");
+    // No closure (see `EvalInto`).
+    let c0 = f64x4(c[0], c[1], c[2], c[3]);
+    let c1 = f64x4(c[4], c[5], c[6], c[7]);
+    let c2 = f64x4(c[8], c[9], c[10], c[11]);
+    let c3 = f64x4(c[12], c[13], c[14], c[15]);
+    simd.mul_add_f64x4(simd.mul_add_f64x4(simd.mul_add_f64x4(c3, t, c2), t, c1), t, c0)
 }
 
 #[cfg(test)]
