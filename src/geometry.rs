@@ -47,6 +47,29 @@ pub fn polygon_contains(polygon: &[Point2<Real>], p: Point2<Real>) -> bool {
     inside
 }
 
+/// The signed area of a closed polygon (the shoelace formula): positive when its vertices run
+/// counter-clockwise (x right, y up), negative when clockwise; the last vertex joins the first.
+///
+/// # Examples
+/// ```
+/// use nalgebra::Point2;
+/// use splineface::geometry::signed_area;
+///
+/// let mut square = vec![Point2::new(0.0, 0.0), Point2::new(2.0, 0.0), Point2::new(2.0, 2.0), Point2::new(0.0, 2.0)];
+/// assert_eq!(signed_area(&square), 4.0);
+/// square.reverse();
+/// assert_eq!(signed_area(&square), -4.0);
+/// ```
+pub fn signed_area(polygon: &[Point2<Real>]) -> Real {
+    let n = polygon.len();
+    0.5 * (0..n)
+        .map(|k| {
+            let (a, b) = (polygon[k], polygon[(k + 1) % n]);
+            a.x * b.y - a.y * b.x
+        })
+        .sum::<Real>()
+}
+
 /// Where the edge `ab` crosses the line at height `y`, under [`polygon_contains`]'s rule (an
 /// edge counts when exactly one end lies above `y`); `None` when it does not cross.
 pub(crate) fn edge_crossing(a: Point2<Real>, b: Point2<Real>, y: Real) -> Option<Real> {

@@ -755,9 +755,10 @@ impl ScanFit {
                     name: &name,
                     description: "a B-spline surface fitted to a scan by splineface fit-surface, in the scan's units",
                     millimetres: false,
-                    outline: &[],
+                    trim: &[],
                 },
             )
+            .expect("an untrimmed surface always encodes")
             .into_bytes(),
             None => return Err(bad("out", out, "a .json or .step file")),
         };

@@ -5,9 +5,9 @@
 //! derivatives, knot insertion, refinement, degree elevation, restriction and splitting serve
 //! the curve as they are, with the same guarantees and tests behind them.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{DMatrix, Point2, Point3, Vector3};
 
-use super::{BSplineError, BSplineSurface, Direction, KnotVector, basis_functions};
+use super::{BSplineError, BSplineSurface, Direction, KnotVector, MAX_DEGREE, basis_functions};
 use crate::Real;
 
 /// A B-spline curve in 3D: a knot vector of degree `p` and its `n` control points
@@ -228,6 +228,127 @@ impl BSplineSurface {
         self.iso(Direction::V, value)
     }
 
+    /// The exact image on the surface of a polyline in its parameter domain: the curve
+    /// `t ↦ F(q(t))`, where `q` runs linearly from vertex `k` to vertex `k + 1` as `t` runs from
+    /// `k` to `k + 1` (so `t ∈ [0, n − 1]` for `n` vertices; repeated consecutive vertices count
+    /// once). A closed outline is one whose last vertex repeats its first.
+    ///
+    /// Along a straight path in `(u, v)` a tensor-product patch of degrees `(p, q)` is a
+    /// polynomial of degree `p + q` in `t`, so the curve has that degree and is exact: one
+    /// Bézier piece between consecutive breakpoints (the vertices and the points where a segment
+    /// crosses an interior knot line), joined with continuity C⁰ (knots of multiplicity
+    /// `p + q`). Each piece's ends are the surface's points there; its inner control points
+    /// solve the Bernstein collocation at the Chebyshev–Lobatto nodes of the piece, which
+    /// reproduces a polynomial of the degree to rounding. This is what a CAD file needs beside
+    /// a trimming polygon in `(u, v)`: the trimmed face's boundary edge in space, with the same
+    /// parameter as its parameter-space curve.
+    ///
+    /// # Errors
+    /// [`BSplineError::NonFiniteParameter`] or [`BSplineError::ParameterOutOfDomain`] for a
+    /// vertex outside the domain; [`BSplineError::PolylineTooShort`] for fewer than two
+    /// distinct vertices; [`BSplineError::DegreeTooHigh`] when `p + q` exceeds
+    /// [`MAX_DEGREE`]; [`BSplineError::DiscontinuousSurface`] when the surface jumps across
+    /// an interior knot line (degree 0 in a direction with interior knots, or a knot repeated
+    /// `degree + 1` times), where no single curve is its image.
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::{Point2, Point3};
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 6, 0.0, 1.0)?;
+    /// let grid = (0..36).map(|i| Point3::new((i / 6) as f64, (i % 6) as f64, ((i * 7) % 5) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 6, 6, grid)?;
+    /// let triangle = [Point2::new(0.1, 0.2), Point2::new(0.9, 0.3), Point2::new(0.4, 0.8), Point2::new(0.1, 0.2)];
+    /// let edge = surface.image_of_polyline(&triangle)?;
+    /// assert_eq!((edge.degree(), edge.domain()), (6, (0.0, 3.0)));
+    /// // Halfway along the second side.
+    /// let on_surface = surface.eval(0.65, 0.55)?;
+    /// assert!((edge.eval(1.5)? - on_surface).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn image_of_polyline(&self, vertices: &[Point2<Real>]) -> Result<BSplineCurve, BSplineError> {
+        for v in vertices {
+            super::surface::check_parameter(self.knots_u(), self.knots_v(), v.x, v.y)?;
+        }
+        let mut path: Vec<Point2<Real>> = Vec::with_capacity(vertices.len());
+        for v in vertices {
+            if path.last() != Some(v) {
+                path.push(*v);
+            }
+        }
+        if path.len() < 2 {
+            return Err(BSplineError::PolylineTooShort { distinct: path.len() });
+        }
+        let degree = self.degree_u() + self.degree_v();
+        if degree > MAX_DEGREE {
+            return Err(BSplineError::DegreeTooHigh {
+                degree,
+                max: MAX_DEGREE,
+            });
+        }
+        let lines_u = interior_knot_lines(self.knots_u(), Direction::U)?;
+        let lines_v = interior_knot_lines(self.knots_v(), Direction::V)?;
+        let end = (path.len() - 1) as Real;
+        if degree == 0 {
+            // Degree 0 both ways with no interior knots: the surface is one point.
+            let knots = KnotVector::new(0, vec![0.0, end])?;
+            return BSplineCurve::new(knots, vec![self.eval(path[0].x, path[0].y)?]);
+        }
+        let collocation = BezierCollocation::new(degree);
+        let ((u0, u1), (v0, v1)) = (self.domain_u(), self.domain_v());
+        let at = |a: &Point2<Real>, b: &Point2<Real>, s: Real| {
+            // A segment's ends exactly (a closed outline's image then closes exactly).
+            let q = if s == 1.0 { *b } else { a + (b - a) * s };
+            // The convex combination can round past the domain's end by an ulp.
+            self.eval(q.x.clamp(u0, u1), q.y.clamp(v0, v1))
+        };
+
+        let mut knots = vec![0.0; degree + 1];
+        let mut points = vec![self.eval(path[0].x, path[0].y)?];
+        let mut cuts: Vec<Real> = Vec::new();
+        let mut samples = vec![Point3::origin(); degree + 1];
+        for (k, pair) in path.windows(2).enumerate() {
+            let (a, b) = (&pair[0], &pair[1]);
+            cuts.clear();
+            cuts.push(0.0);
+            for (lines, from, to) in [(&lines_u, a.x, b.x), (&lines_v, a.y, b.y)] {
+                for &line in lines {
+                    if (from - line) * (to - line) < 0.0 {
+                        cuts.push((line - from) / (to - from));
+                    }
+                }
+            }
+            cuts.push(1.0);
+            cuts.sort_by(Real::total_cmp);
+            // Crossings closer than this (a path through a knot lines' intersection, crossing
+            // both at once) are one breakpoint: the sliver between them would be a piece of no
+            // length, and a CAD reader's knot tolerance would merge its knots anyway.
+            const MERGE: Real = 1e-9;
+            cuts.dedup_by(|later, kept| *later - *kept < MERGE);
+            if let Some(last) = cuts.last_mut() {
+                *last = 1.0;
+            }
+            for piece in cuts.windows(2) {
+                let (s0, s1) = (piece[0], piece[1]);
+                samples[0] = *points.last().expect("the path's first point");
+                for (i, &node) in collocation.nodes.iter().enumerate().skip(1) {
+                    samples[i] = at(a, b, s0 * (1.0 - node) + s1 * node)?;
+                }
+                points.extend(collocation.inner_points(&samples));
+                points.push(samples[degree]);
+                let t = if piece[1] == 1.0 {
+                    (k + 1) as Real
+                } else {
+                    k as Real + s1
+                };
+                knots.extend(std::iter::repeat_n(t, degree));
+            }
+        }
+        knots.push(*knots.last().expect("knots were pushed"));
+        BSplineCurve::new(KnotVector::new(degree, knots)?, points)
+    }
+
     fn iso(&self, direction: Direction, value: Real) -> Result<BSplineCurve, BSplineError> {
         let (fixed, free) = match direction {
             Direction::U => (self.knots_u(), self.knots_v()),
@@ -253,5 +374,87 @@ impl BSplineSurface {
             })
             .collect();
         BSplineCurve::new(free.clone(), points)
+    }
+}
+
+/// The distinct knot values strictly inside the domain; an error where the spline jumps there.
+fn interior_knot_lines(knots: &KnotVector, direction: Direction) -> Result<Vec<Real>, BSplineError> {
+    let (start, end) = knots.domain();
+    let degree = knots.degree();
+    let mut lines: Vec<Real> = Vec::new();
+    for &k in knots.knots().iter().filter(|&&k| k > start && k < end) {
+        if lines.last() != Some(&k) {
+            lines.push(k);
+        }
+        let multiplicity = knots.knots().iter().filter(|&&x| x == k).count();
+        if multiplicity > degree {
+            return Err(BSplineError::DiscontinuousSurface {
+                direction,
+                value: k,
+                multiplicity,
+                degree,
+            });
+        }
+    }
+    Ok(lines)
+}
+
+/// Bernstein collocation of one degree at the Chebyshev–Lobatto nodes `sᵢ = (1 − cos(iπ/p))/2`
+/// of `[0, 1]`: the inner Bézier control points of the polynomial taking given values there.
+struct BezierCollocation {
+    nodes: Vec<Real>,
+    /// `(p − 1) × (p − 1)`: the inverse of the inner nodes' inner Bernstein values.
+    inverse: DMatrix<Real>,
+    /// `(p − 1) × 2`: the inner nodes' values of the end polynomials `B₀`, `Bₚ`.
+    ends: DMatrix<Real>,
+}
+
+impl BezierCollocation {
+    fn new(degree: usize) -> Self {
+        let p = degree;
+        let nodes: Vec<Real> = (0..=p)
+            .map(|i| {
+                if p == 0 || i == 0 {
+                    0.0
+                } else if i == p {
+                    1.0
+                } else {
+                    0.5 * (1.0 - (std::f64::consts::PI * i as Real / p as Real).cos())
+                }
+            })
+            .collect();
+        let binomial =
+            |n: usize, k: usize| -> Real { (0..k).fold(1.0, |c, j| c * (n - j) as Real / (j + 1) as Real) };
+        let bernstein =
+            |j: usize, s: Real| binomial(p, j) * s.powi(j as i32) * (1.0 - s).powi((p - j) as i32);
+        let inner = p.saturating_sub(1);
+        let matrix = DMatrix::from_fn(inner, inner, |i, j| bernstein(j + 1, nodes[i + 1]));
+        let inverse = if inner == 0 {
+            matrix
+        } else {
+            matrix
+                .try_inverse()
+                .expect("Bernstein collocation at distinct nodes is invertible")
+        };
+        let ends = DMatrix::from_fn(inner, 2, |i, e| bernstein(e * p, nodes[i + 1]));
+        BezierCollocation { nodes, inverse, ends }
+    }
+
+    /// The inner control points `c₁ … c_{p−1}` of the polynomial whose values at the nodes
+    /// are `samples` (whose ends are `c₀` and `cₚ`).
+    fn inner_points(&self, samples: &[Point3<Real>]) -> impl Iterator<Item = Point3<Real>> + '_ {
+        let p = samples.len() - 1;
+        let (first, last) = (samples[0].coords, samples[p].coords);
+        let rhs: Vec<Vector3<Real>> = (0..p.saturating_sub(1))
+            .map(|i| samples[i + 1].coords - first * self.ends[(i, 0)] - last * self.ends[(i, 1)])
+            .collect();
+        (0..rhs.len()).map(move |r| {
+            Point3::from(
+                rhs.iter()
+                    .enumerate()
+                    .map(|(i, y)| y * self.inverse[(r, i)])
+                    .sum::<Vector3<Real>>(),
+            )
+        })
     }
 }

@@ -170,6 +170,28 @@ pub enum BSplineError {
         /// Points the knot vector needs.
         expected: usize,
     },
+    /// A polyline in a surface's parameter domain has fewer than two distinct vertices.
+    #[error("the polyline has {distinct} distinct vertices; at least 2 are needed")]
+    PolylineTooShort {
+        /// Distinct consecutive vertices given.
+        distinct: usize,
+    },
+    /// The surface jumps across a knot line inside its domain (degree 0 there, or an interior
+    /// knot of multiplicity `degree + 1`), so the image of a path across it is not one curve.
+    #[error(
+        "the surface is discontinuous at {direction} = {value} (knot multiplicity {multiplicity}, \
+         degree {degree})"
+    )]
+    DiscontinuousSurface {
+        /// `u` or `v`.
+        direction: Direction,
+        /// The knot's value.
+        value: Real,
+        /// Its multiplicity.
+        multiplicity: usize,
+        /// The direction's degree.
+        degree: usize,
+    },
     /// A curve's control point has a NaN or infinite coordinate.
     #[error("control point {index} is not finite")]
     NonFiniteCurvePoint {

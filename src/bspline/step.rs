@@ -1,11 +1,11 @@
 //! STEP (ISO 10303-21, AP214 "automotive design") export of a B-spline surface, so that CAD
-//! tools open the face as the exact spline.
+//! tools open the face as the exact spline, whole or trimmed to a region of its domain.
 
 use std::fmt::Write;
 
-use nalgebra::Point3;
+use nalgebra::{Point2, Point3};
 
-use super::{BSplineSurface, KnotVector};
+use super::{BSplineCurve, BSplineError, BSplineSurface, KnotVector};
 use crate::Real;
 
 /// What goes into a STEP file besides the surface.
@@ -18,9 +18,10 @@ pub struct StepOptions<'a> {
     /// The length unit's SI prefix: `true` for millimetres, `false` for no unit conversion
     /// (the file still declares millimetres; the description says what the numbers are).
     pub millimetres: bool,
-    /// A closed polyline to add as the face region's outline (3D points on the surface), or
-    /// empty.
-    pub outline: &'a [Point3<Real>],
+    /// A simple closed polygon in the surface's `(u, v)` domain to trim it to (the last
+    /// vertex may repeat the first or not; either orientation), or empty for the whole
+    /// parameter rectangle.
+    pub trim: &'a [Point2<Real>],
 }
 
 /// A real in ISO 10303-21 form: a decimal point is mandatory (`1.`, `1.5E-05`).
@@ -79,11 +80,29 @@ fn list<T>(items: &[T], f: impl Fn(&T) -> String) -> String {
 
 /// Encodes the surface as a STEP AP214 file: a `B_SPLINE_SURFACE_WITH_KNOTS` (the control grid,
 /// degrees and knots exactly as in the kernel, numbers in their shortest exact decimal form)
-/// inside a `GEOMETRIC_SET` of a `GEOMETRICALLY_BOUNDED_SURFACE_SHAPE_REPRESENTATION`, with the
-/// product structure and unit context CAD readers expect, and optionally the face outline as a
-/// `POLYLINE`. The surface is untrimmed: its whole parameter rectangle is written, and the
-/// outline shows the face region.
-pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> String {
+/// with the product structure and unit context CAD readers expect.
+///
+/// * Without a trim, the surface's whole parameter rectangle, in a `GEOMETRIC_SET` of a
+///   `GEOMETRICALLY_BOUNDED_SURFACE_SHAPE_REPRESENTATION`.
+/// * With one, a trimmed face: an `ADVANCED_FACE` on the surface in an `OPEN_SHELL` of a
+///   `SHELL_BASED_SURFACE_MODEL` (a `MANIFOLD_SURFACE_SHAPE_REPRESENTATION`), bounded by one
+///   closed edge. The edge is a `SURFACE_CURVE` of two exact representations with the same
+///   parameter `t`: in space, the polygon's image on the surface
+///   ([`BSplineSurface::image_of_polyline`], a `B_SPLINE_CURVE_WITH_KNOTS` of degree
+///   `p + q`), and in the surface's domain (`PCURVE`), the polygon itself as a degree-1
+///   B-spline, side `k` over `t ∈ [k, k + 1]`. The loop runs counter-clockwise in `(u, v)`, so
+///   the face keeps the surface's orientation (`∂F/∂u × ∂F/∂v`).
+///
+/// # Errors
+/// From [`BSplineSurface::image_of_polyline`], for a trim polygon outside the domain, with
+/// fewer than 3 distinct vertices ([`BSplineError::PolylineTooShort`]) or on a surface that
+/// jumps across a knot line.
+pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Result<String, BSplineError> {
+    let trim = if options.trim.is_empty() {
+        None
+    } else {
+        Some(TrimLoop::new(surface, options.trim)?)
+    };
     let mut w = Entities::default();
     let context = w.add("APPLICATION_CONTEXT('automotive design')".into());
     w.add(format!(
@@ -135,16 +154,24 @@ pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Strin
         list(&ku, |&k| real(k)),
         list(&kv, |&k| real(k)),
     ));
-    let mut items = vec![spline];
-    if options.outline.len() >= 2 {
-        let mut ids: Vec<usize> = options.outline.iter().map(|p| w.point(p)).collect();
-        ids.push(ids[0]);
-        items.push(w.add(format!("POLYLINE('outline',{})", list(&ids, |k| format!("#{k}")))));
-    }
-    let set = w.add(format!("GEOMETRIC_SET('',{})", list(&items, |k| format!("#{k}"))));
-    let representation = w.add(format!(
-        "GEOMETRICALLY_BOUNDED_SURFACE_SHAPE_REPRESENTATION({name},(#{set}),#{representation_context})"
-    ));
+    let representation = match &trim {
+        None => {
+            let set = w.add(format!("GEOMETRIC_SET('',(#{spline}))"));
+            w.add(format!(
+                "GEOMETRICALLY_BOUNDED_SURFACE_SHAPE_REPRESENTATION({name},(#{set}),#{representation_context})"
+            ))
+        }
+        Some(trim) => {
+            let shell = trim.write(&mut w, spline, &name);
+            let origin = w.point(&Point3::origin());
+            let z = w.add("DIRECTION('',(0.,0.,1.))".into());
+            let x = w.add("DIRECTION('',(1.,0.,0.))".into());
+            let axes = w.add(format!("AXIS2_PLACEMENT_3D('',#{origin},#{z},#{x})"));
+            w.add(format!(
+                "MANIFOLD_SURFACE_SHAPE_REPRESENTATION({name},(#{axes},#{shell}),#{representation_context})"
+            ))
+        }
+    };
     w.add(format!(
         "SHAPE_DEFINITION_REPRESENTATION(#{shape},#{representation})"
     ));
@@ -160,7 +187,85 @@ pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Strin
     out.push_str("FILE_SCHEMA(('AUTOMOTIVE_DESIGN { 1 0 10303 214 1 1 1 1 }'));\nENDSEC;\nDATA;\n");
     out.push_str(&w.data);
     out.push_str("ENDSEC;\nEND-ISO-10303-21;\n");
-    out
+    Ok(out)
+}
+
+/// A trimming loop: the polygon counter-clockwise, closed, without repeated vertices, and its
+/// image on the surface.
+struct TrimLoop {
+    /// `n + 1` vertices, the last the first again.
+    polygon: Vec<Point2<Real>>,
+    /// The image, over `t ∈ [0, n]` like the polygon.
+    edge: BSplineCurve,
+}
+
+impl TrimLoop {
+    fn new(surface: &BSplineSurface, trim: &[Point2<Real>]) -> Result<Self, BSplineError> {
+        let mut polygon: Vec<Point2<Real>> = trim.to_vec();
+        polygon.dedup();
+        while polygon.len() > 1 && polygon.first() == polygon.last() {
+            polygon.pop();
+        }
+        if polygon.len() < 3 {
+            return Err(BSplineError::PolylineTooShort {
+                distinct: polygon.len(),
+            });
+        }
+        if crate::geometry::signed_area(&polygon) < 0.0 {
+            polygon.reverse();
+        }
+        polygon.push(polygon[0]);
+        let edge = surface.image_of_polyline(&polygon)?;
+        Ok(TrimLoop { polygon, edge })
+    }
+
+    /// Writes the loop's topology and geometry on `surface` (an entity already written);
+    /// returns the `SHELL_BASED_SURFACE_MODEL`.
+    fn write(&self, w: &mut Entities, surface: usize, name: &str) -> usize {
+        let (knots, multiplicities) = knots_and_multiplicities(self.edge.knots());
+        let points: Vec<usize> = self.edge.control_points().iter().map(|p| w.point(p)).collect();
+        let curve = w.add(format!(
+            "B_SPLINE_CURVE_WITH_KNOTS('',{},{},.UNSPECIFIED.,.T.,.F.,{},{},.UNSPECIFIED.)",
+            self.edge.degree(),
+            list(&points, |k| format!("#{k}")),
+            list(&multiplicities, |m| m.to_string()),
+            list(&knots, |&k| real(k)),
+        ));
+        // The polygon as a degree-1 B-spline: a knot at every vertex, ends clamped.
+        let uv: Vec<usize> = self
+            .polygon
+            .iter()
+            .map(|p| w.add(format!("CARTESIAN_POINT('',({},{}))", real(p.x), real(p.y))))
+            .collect();
+        let sides = self.polygon.len() - 1;
+        let mut uv_multiplicities = vec![1; sides + 1];
+        uv_multiplicities[0] = 2;
+        uv_multiplicities[sides] = 2;
+        let uv_knots: Vec<Real> = (0..=sides).map(|k| k as Real).collect();
+        let uv_curve = w.add(format!(
+            "B_SPLINE_CURVE_WITH_KNOTS('',1,{},.POLYLINE_FORM.,.T.,.F.,{},{},.UNSPECIFIED.)",
+            list(&uv, |k| format!("#{k}")),
+            list(&uv_multiplicities, |m| m.to_string()),
+            list(&uv_knots, |&k| real(k)),
+        ));
+        let plane = w.add(
+            "(GEOMETRIC_REPRESENTATION_CONTEXT(2)PARAMETRIC_REPRESENTATION_CONTEXT()\
+             REPRESENTATION_CONTEXT('2D SPACE',''))"
+                .into(),
+        );
+        let in_domain = w.add(format!("DEFINITIONAL_REPRESENTATION('',(#{uv_curve}),#{plane})"));
+        let pcurve = w.add(format!("PCURVE('',#{surface},#{in_domain})"));
+        let both = w.add(format!("SURFACE_CURVE('',#{curve},(#{pcurve}),.PCURVE_S1.)"));
+        let start = w.point(&self.edge.control_points()[0]);
+        let vertex = w.add(format!("VERTEX_POINT('',#{start})"));
+        let edge = w.add(format!("EDGE_CURVE('',#{vertex},#{vertex},#{both},.T.)"));
+        let oriented = w.add(format!("ORIENTED_EDGE('',*,*,#{edge},.T.)"));
+        let edge_loop = w.add(format!("EDGE_LOOP('',(#{oriented}))"));
+        let bound = w.add(format!("FACE_OUTER_BOUND('',#{edge_loop},.T.)"));
+        let face = w.add(format!("ADVANCED_FACE({name},(#{bound}),#{surface},.T.)"));
+        let shell = w.add(format!("OPEN_SHELL('',(#{face}))"));
+        w.add(format!("SHELL_BASED_SURFACE_MODEL('',(#{shell}))"))
+    }
 }
 
 /// The data section being written: entity instances numbered from 1.

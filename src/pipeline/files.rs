@@ -291,7 +291,7 @@ impl Reconstruction {
         let parts: Vec<Part<'_>> = vec![
             Box::new(|| self.mesh_files(&mesh)),
             Box::new(|| self.texture_files()),
-            Box::new(|| Ok(self.surface_files())),
+            Box::new(|| self.surface_files()),
             Box::new(|| self.depth_files(&mesh)),
             Box::new(|| Ok(vec![("curvature.png".into(), self.curvature_png()?)])),
             // Where the photos agree, before and after the refinement.
@@ -377,17 +377,11 @@ impl Reconstruction {
         ])
     }
 
-    /// `surface.json` and `surface.step`: the exact surface in output units, the STEP file with
-    /// the face region's outline.
-    fn surface_files(&self) -> Files {
+    /// `surface.json` and `surface.step`: the exact surface in output units, the STEP file's
+    /// face trimmed to the face region (the clip polygon, exactly as the mesh is clipped).
+    fn surface_files(&self) -> Result<Files, PipelineError> {
         let units = self.options.units;
         let surface = self.face.surface().transformed(&units.transform());
-        let outline: Vec<Point3<Real>> = self
-            .face
-            .clip()
-            .iter()
-            .filter_map(|p| surface.eval(p.x, p.y).ok())
-            .collect();
         let description = match units {
             Units::Millimetres { eye_distance } => {
                 format!("splineface face, millimetres ({eye_distance} mm between the eye centres), x right, y up, z toward the viewer")
@@ -400,13 +394,14 @@ impl Reconstruction {
                 name: "face",
                 description: &description,
                 millimetres: matches!(units, Units::Millimetres { .. }),
-                outline: &outline,
+                trim: self.face.clip(),
             },
-        );
-        vec![
+        )
+        .map_err(encode_error("surface.step"))?;
+        Ok(vec![
             ("surface.json".into(), surface.to_json().into_bytes()),
             ("surface.step".into(), step.into_bytes()),
-        ]
+        ])
     }
 
     /// `depth.exr`, `depth.png` and `preview.png`: the depth map from the front.

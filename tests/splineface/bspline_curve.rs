@@ -1,11 +1,12 @@
 //! B-spline curves and a surface's iso-parametric curves: closed forms (Bernstein polynomials
 //! and their derivatives), an independent Cox–de Boor oracle on random curves, the operations
-//! leaving the curve unchanged to rounding, and iso-curves that are the surface exactly.
+//! leaving the curve unchanged to rounding, iso-curves that are the surface exactly, and the
+//! images of parameter-space polylines that are the surface along them.
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Point2, Point3, Vector3};
 use proptest::prelude::*;
 use splineface::Real;
-use splineface::bspline::{BSplineCurve, BSplineError, KnotVector};
+use splineface::bspline::{BSplineCurve, BSplineError, BSplineSurface, Direction, KnotVector};
 
 use super::common::{in_domain, knot_vector, naive_basis, random_points, surface};
 
@@ -131,4 +132,128 @@ proptest! {
         prop_assert!((along_v.derivatives(v, 1).unwrap()[1] - d.get(0, 1)).norm() < 1e-7 * (1.0 + d.get(0, 1).norm()));
         prop_assert!(surface.iso_u(surface.domain_u().1 + 1.0).is_err());
     }
+
+    /// The image of a polyline in `(u, v)` is the surface along it: at every vertex, at the
+    /// crossings of knot lines and between them, to rounding; of degree `p + q`, one unit of
+    /// parameter a side. Where the surface jumps across a knot line it is refused instead.
+    #[test]
+    fn polyline_images_are_the_surface(
+        surface in surface(),
+        corners in prop::collection::vec((0.0..=1.0f64, 0.0..=1.0f64), 2..6),
+        repeat in any::<bool>(),
+    ) {
+        let mut path: Vec<Point2<Real>> = corners
+            .iter()
+            .map(|&(s, t)| Point2::new(in_domain(surface.knots_u(), s), in_domain(surface.knots_v(), t)))
+            .collect();
+        if repeat {
+            path.insert(1, path[0]);
+        }
+        let mut distinct = path.clone();
+        distinct.dedup();
+        let jumps = |k: &KnotVector| {
+            let (a, b) = k.domain();
+            k.knots().iter().any(|&x| x > a && x < b && k.knots().iter().filter(|&&y| y == x).count() > k.degree())
+        };
+        let image = surface.image_of_polyline(&path);
+        if distinct.len() < 2 {
+            prop_assert_eq!(image.unwrap_err(), BSplineError::PolylineTooShort { distinct: 1 });
+            return Ok(());
+        }
+        if jumps(surface.knots_u()) || jumps(surface.knots_v()) {
+            prop_assert!(matches!(image, Err(BSplineError::DiscontinuousSurface { .. })), "{image:?}");
+            return Ok(());
+        }
+        let curve = image.unwrap();
+        prop_assert_eq!(curve.degree(), surface.degree_u() + surface.degree_v());
+        prop_assert_eq!(curve.domain(), (0.0, (distinct.len() - 1) as Real));
+        for (k, pair) in distinct.windows(2).enumerate() {
+            let (a, b) = (pair[0], pair[1]);
+            // Evenly spaced points, and the points on the knot lines the side crosses.
+            let mut along: Vec<Real> = (0..=16).map(|i| i as Real / 16.0).collect();
+            for (knots, from, to) in [(surface.knots_u(), a.x, b.x), (surface.knots_v(), a.y, b.y)] {
+                for &line in knots.knots() {
+                    if (from - line) * (to - line) < 0.0 {
+                        along.push((line - from) / (to - from));
+                    }
+                }
+            }
+            for s in along {
+                let q = a + (b - a) * s;
+                let (u0, u1) = surface.domain_u();
+                let (v0, v1) = surface.domain_v();
+                let expected = surface.eval(q.x.clamp(u0, u1), q.y.clamp(v0, v1)).unwrap();
+                let got = curve.eval((k as Real + s).min(curve.domain().1)).unwrap();
+                prop_assert!((got - expected).norm() < 1e-8, "side {k} at {s}: {} from the surface", (got - expected).norm());
+            }
+        }
+    }
+}
+
+#[test]
+fn polyline_images_refuse_what_is_not_a_curve_on_the_surface() {
+    let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0).unwrap();
+    let surface = BSplineSurface::new(k.clone(), k, 5, 5, random_points(25, 7)).unwrap();
+    let a = Point2::new(0.2, 0.3);
+    assert_eq!(
+        surface.image_of_polyline(&[a, a]).unwrap_err(),
+        BSplineError::PolylineTooShort { distinct: 1 }
+    );
+    assert_eq!(
+        surface.image_of_polyline(&[]).unwrap_err(),
+        BSplineError::PolylineTooShort { distinct: 0 }
+    );
+    assert!(matches!(
+        surface.image_of_polyline(&[a, Point2::new(1.2, 0.3)]),
+        Err(BSplineError::ParameterOutOfDomain {
+            direction: Direction::U,
+            ..
+        })
+    ));
+    assert!(matches!(
+        surface.image_of_polyline(&[a, Point2::new(0.5, Real::NAN)]),
+        Err(BSplineError::NonFiniteParameter { .. })
+    ));
+    // A knot repeated degree + 1 times inside the domain: the surface tears along v = 0.5.
+    let torn = KnotVector::new(1, vec![0.0, 0.0, 0.5, 0.5, 1.0, 1.0]).unwrap();
+    let linear = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
+    let surface = BSplineSurface::new(linear, torn, 2, 4, random_points(8, 3)).unwrap();
+    assert_eq!(
+        surface
+            .image_of_polyline(&[a, Point2::new(0.2, 0.9)])
+            .unwrap_err(),
+        BSplineError::DiscontinuousSurface {
+            direction: Direction::V,
+            value: 0.5,
+            multiplicity: 2,
+            degree: 1
+        }
+    );
+}
+
+/// A bilinear patch along its diagonal is the closed-form quadratic `F(t, t)`.
+#[test]
+fn a_bilinear_patch_along_its_diagonal_is_a_parabola() {
+    let k = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
+    let corners = vec![
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(0.0, 1.0, 0.0),
+        Point3::new(1.0, 0.0, 0.0),
+        Point3::new(1.0, 1.0, 1.0),
+    ];
+    let surface = BSplineSurface::new(k.clone(), k, 2, 2, corners).unwrap();
+    let curve = surface
+        .image_of_polyline(&[Point2::new(0.0, 0.0), Point2::new(1.0, 1.0)])
+        .unwrap();
+    // F(t, t) = (t, t, t²): the quadratic Bézier curve (0,0,0), (½,½,0), (1,1,1).
+    assert_eq!(curve.degree(), 2);
+    let expected = [
+        Point3::new(0.0, 0.0, 0.0),
+        Point3::new(0.5, 0.5, 0.0),
+        Point3::new(1.0, 1.0, 1.0),
+    ];
+    for (got, want) in curve.control_points().iter().zip(&expected) {
+        assert!((got - want).norm() < 1e-15, "{got} against {want}");
+    }
+    assert_eq!(curve.knots().knots(), &[0.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
 }

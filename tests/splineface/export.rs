@@ -182,28 +182,24 @@ fn ply_and_obj_carry_normals() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-fn step_file() -> (String, FaceSurface) {
+fn step_file(trim: bool) -> (String, FaceSurface) {
     let face = face();
-    let outline: Vec<Point3<Real>> = face
-        .clip()
-        .iter()
-        .map(|p| face.surface().eval(p.x, p.y).unwrap())
-        .collect();
     let text = encode_step(
         face.surface(),
         &StepOptions {
             name: "face",
             description: "canonical units",
             millimetres: false,
-            outline: &outline,
+            trim: if trim { face.clip() } else { &[] },
         },
-    );
+    )
+    .unwrap();
     (text, face)
 }
 
-#[test]
-fn step_is_well_formed() {
-    let (text, face) = step_file();
+/// The data section's entities, checked to be numbered from 1 in order and to refer only to
+/// entities before them.
+fn step_entities(text: &str) -> Vec<&str> {
     assert!(text.starts_with("ISO-10303-21;\nHEADER;"));
     assert!(text.trim_end().ends_with("END-ISO-10303-21;"));
     let data = &text[text.find("DATA;").unwrap() + 6..text.rfind("ENDSEC;").unwrap()];
@@ -213,21 +209,6 @@ fn step_is_well_formed() {
             line.starts_with(&format!("#{}=", k + 1)) && line.ends_with(';'),
             "{line}"
         );
-    }
-    let points = lines.iter().filter(|l| l.contains("CARTESIAN_POINT")).count();
-    assert_eq!(
-        points,
-        face.surface().rows() * face.surface().cols() + face.clip().len()
-    );
-    assert_eq!(
-        lines
-            .iter()
-            .filter(|l| l.contains("B_SPLINE_SURFACE_WITH_KNOTS"))
-            .count(),
-        1
-    );
-    // References point backwards only, to entities that exist.
-    for (k, line) in lines.iter().enumerate() {
         for part in line.split('#').skip(2) {
             let n: usize = part
                 .chars()
@@ -238,6 +219,94 @@ fn step_is_well_formed() {
             assert!(n >= 1 && n <= k + 1, "{line}");
         }
     }
+    lines
+}
+
+fn count(lines: &[&str], entity: &str) -> usize {
+    lines
+        .iter()
+        .filter(|l| l.contains(&format!("={entity}(")) || l.contains(&format!("({entity}(")))
+        .count()
+}
+
+#[test]
+fn an_untrimmed_step_file_is_the_surface_alone() {
+    let (text, face) = step_file(false);
+    let lines = step_entities(&text);
+    let grid = face.surface().rows() * face.surface().cols();
+    assert_eq!(count(&lines, "CARTESIAN_POINT"), grid);
+    assert_eq!(count(&lines, "B_SPLINE_SURFACE_WITH_KNOTS"), 1);
+    assert_eq!(
+        count(&lines, "GEOMETRICALLY_BOUNDED_SURFACE_SHAPE_REPRESENTATION"),
+        1
+    );
+    assert_eq!(count(&lines, "ADVANCED_FACE"), 0);
+}
+
+#[test]
+fn a_trimmed_step_file_bounds_one_face_by_the_clip_polygon() {
+    let (text, face) = step_file(true);
+    let lines = step_entities(&text);
+    let one = [
+        "B_SPLINE_SURFACE_WITH_KNOTS",
+        "ADVANCED_FACE",
+        "FACE_OUTER_BOUND",
+        "EDGE_LOOP",
+        "EDGE_CURVE",
+        "SURFACE_CURVE",
+        "PCURVE",
+        "OPEN_SHELL",
+        "SHELL_BASED_SURFACE_MODEL",
+        "MANIFOLD_SURFACE_SHAPE_REPRESENTATION",
+    ];
+    for entity in one {
+        assert_eq!(count(&lines, entity), 1, "{entity}");
+    }
+    assert_eq!(count(&lines, "B_SPLINE_CURVE_WITH_KNOTS"), 2);
+    // The parameter-space curve: the clip's vertices, closed, counter-clockwise.
+    let uv_curve = lines
+        .iter()
+        .find(|l| l.contains("B_SPLINE_CURVE_WITH_KNOTS('',1,"))
+        .unwrap();
+    let refs = uv_curve.matches('#').count() - 1;
+    assert_eq!(refs, face.clip().len() + 1);
+    // The space curve has the degree of the image of a line on a bicubic patch.
+    let degree = face.surface().degree_u() + face.surface().degree_v();
+    assert!(
+        lines
+            .iter()
+            .any(|l| l.contains(&format!("B_SPLINE_CURVE_WITH_KNOTS('',{degree},")))
+    );
+    let grid = face.surface().rows() * face.surface().cols();
+    let points = count(&lines, "CARTESIAN_POINT");
+    // Grid, space curve (several Bézier pieces a side), polygon, vertex, origin.
+    assert!(points > grid + 2 * face.clip().len() + 2, "{points}");
+}
+
+#[test]
+fn a_trim_that_is_not_a_polygon_in_the_domain_is_refused() {
+    let face = face();
+    for (trim, what) in [
+        (vec![Point2::new(0.2, 0.2), Point2::new(0.8, 0.2)], "too short"),
+        (
+            vec![
+                Point2::new(0.2, 0.2),
+                Point2::new(1.8, 0.2),
+                Point2::new(0.5, 0.9),
+            ],
+            "outside",
+        ),
+    ] {
+        let result = encode_step(
+            face.surface(),
+            &StepOptions {
+                name: "face",
+                trim: &trim,
+                ..StepOptions::default()
+            },
+        );
+        assert!(result.is_err(), "{what}");
+    }
 }
 
 /// Reads the STEP file back with steputils and evaluates it with geomdl (both Python,
@@ -246,7 +315,7 @@ fn step_is_well_formed() {
 #[ignore = "needs python3 with steputils and geomdl (installed by .ci/run)"]
 fn step_reads_back_with_an_independent_reader() {
     let dir = scratch("step");
-    let (text, face) = step_file();
+    let (text, face) = step_file(true);
     let path = dir.join("face.step");
     std::fs::write(&path, text).unwrap();
     let params: Vec<[Real; 2]> = (0..50)
@@ -273,11 +342,25 @@ fn step_reads_back_with_an_independent_reader() {
         "{}",
         String::from_utf8_lossy(&output.stderr)
     );
-    let points: Vec<[Real; 3]> = serde_json::from_slice(&output.stdout).unwrap();
+    let read: serde_json::Value = serde_json::from_slice(&output.stdout).unwrap();
+    let points: Vec<[Real; 3]> = serde_json::from_value(read["points"].clone()).unwrap();
+    assert_eq!(points.len(), params.len());
     for (p, q) in params.iter().zip(&points) {
         let ours = face.surface().eval(p[0], p[1]).unwrap();
         let d = (ours - Point3::from(*q)).norm();
         assert!(d < 1e-9, "at {p:?}: {d}");
     }
+    // The trimmed face's edge: its space curve is the surface along its parameter-space curve
+    // (both as geomdl evaluates them), and that curve is the clip polygon, counter-clockwise.
+    let trim = &read["trim"];
+    let gap = trim["gap"].as_f64().unwrap();
+    assert!(gap < 1e-9, "the edge's two curves are {gap} apart");
+    assert_eq!(trim["vertices"].as_u64().unwrap() as usize, face.clip().len());
+    let area = splineface::geometry::signed_area(face.clip()).abs();
+    let read_area = trim["area"].as_f64().unwrap();
+    assert!(
+        read_area > 0.0 && (read_area - area).abs() < 1e-12,
+        "{read_area} against {area}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
