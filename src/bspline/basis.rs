@@ -253,6 +253,29 @@ impl SpanPolynomials {
         &self.coefficients[span * w * w..(span + 1) * w * w]
     }
 
+    /// [`SpanPolynomials::derivatives`] to order 2 for a degree known at compile time
+    /// (`W = p + 1`): `[values, first, second]`, loops the compiler unrolls.
+    #[inline(always)]
+    pub(crate) fn derivatives_fixed<const W: usize>(&self, span: usize, u: Real) -> [[Real; W]; 3] {
+        debug_assert_eq!(self.degree + 1, W);
+        let [start, inverse] = self.starts[span];
+        let t = (u - start) * inverse;
+        let c = &self.coefficients[span * W * W..(span + 1) * W * W];
+        let mut out = [[0.0; W]; 3];
+        for r in 0..W {
+            let (mut value, mut first, mut second) = (c[(W - 1) * W + r], 0.0, 0.0);
+            for k in (0..W - 1).rev() {
+                second = second * t + 2.0 * first;
+                first = first * t + value;
+                value = value * t + c[k * W + r];
+            }
+            out[0][r] = value;
+            out[1][r] = first * inverse;
+            out[2][r] = second * inverse * inverse;
+        }
+        out
+    }
+
     /// As [`basis_derivatives`] for orders up to 2: `out[k·(p + 1) + r]` receives
     /// `N⁽ᵏ⁾_{span−p+r}(u)` for `k ≤ order`, zeros above the degree.
     #[inline]
