@@ -356,6 +356,65 @@ impl BSplineSurfaceHandle {
         Ok(to_numpy(py, values, &[params.len(), 3])?.into_any().unbind())
     }
 
+    /// The closest points of the surface to `points` (float64 `(n, 3)`), in parallel: a dict
+    /// of `params` float64 `(n, 2)`, `points` `(n, 3)` and `distances` `(n,)` (Newton from
+    /// the nearest of a sampling, checked against every knot span that comes nearer).
+    fn closest<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
+        let (values, _) = floats(points, "points", &[None, Some(3)])?;
+        let queries: Vec<Point3<f64>> = values
+            .chunks_exact(3)
+            .map(|c| Point3::new(c[0], c[1], c[2]))
+            .collect();
+        let found = py
+            .detach(|| splineface::bspline::ClosestPoints::new(&self.surface).closest_many(&queries))
+            .map_err(kernel_error)?;
+        let n = found.len();
+        let out = PyDict::new(py);
+        out.set_item(
+            "params",
+            to_numpy(py, found.iter().flat_map(|c| [c.u, c.v]).collect(), &[n, 2])?,
+        )?;
+        out.set_item(
+            "points",
+            points_to_numpy(py, found.iter().map(|c| c.point).collect(), &[n, 3])?,
+        )?;
+        out.set_item(
+            "distances",
+            to_numpy(py, found.iter().map(|c| c.distance).collect(), &[n])?,
+        )?;
+        Ok(out)
+    }
+
+    /// The surface as STEP AP214 text (`splineface::bspline::encode_step`): the exact spline,
+    /// whole, or trimmed to `trim`, a closed polygon in `(u, v)` (float64 `(m, 2)`, `m ≥ 3`),
+    /// as one face bounded by the polygon and its exact image on the surface.
+    #[pyo3(signature = (name = "surface", description = "", trim = None))]
+    fn to_step(&self, name: &str, description: &str, trim: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
+        let trim: Vec<nalgebra::Point2<f64>> = match trim {
+            Some(t) => params_of(t, "trim")?
+                .into_iter()
+                .map(|[u, v]| nalgebra::Point2::new(u, v))
+                .collect(),
+            None => Vec::new(),
+        };
+        if trim.len() == 1 || trim.len() == 2 {
+            return Err(PyValueError::new_err(format!(
+                "trim: {} vertices; a polygon needs at least 3",
+                trim.len()
+            )));
+        }
+        splineface::bspline::encode_step(
+            &self.surface,
+            &splineface::bspline::StepOptions {
+                name,
+                description,
+                millimetres: false,
+                trim: &trim,
+            },
+        )
+        .map_err(|e| PyValueError::new_err(format!("trim: {e}")))
+    }
+
     /// The control grid: float64 `(rows, cols, 3)` (a copy).
     #[getter]
     fn control_points(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {

@@ -151,3 +151,52 @@ def test_bad_grids_and_fits_are_refused():
     # Too few samples for the grid: the kernel names the free control point.
     with pytest.raises(ValueError, match="control point"):
         splineface.BSplineSurface.fit(cubic_samples(params), params, shape=(12, 12))
+
+
+def test_closest_points_on_a_plane_are_the_feet_of_the_perpendiculars():
+    # z = 0 over [0, 3]²: the closest point to (x, y, h) is (x, y, 0), at (u, v) = (x, y) / 3.
+    i, j = np.meshgrid(np.arange(4.0), np.arange(4.0), indexing="ij")
+    grid = np.stack([i, j, np.zeros_like(i)], axis=-1)
+    plane = splineface.BSplineSurface(grid, degree_u=3, degree_v=3)
+    rng = np.random.default_rng(3)
+    queries = np.column_stack([rng.uniform(0, 3, 50), rng.uniform(0, 3, 50), rng.uniform(-2, 2, 50)])
+    found = plane.closest(queries)
+    np.testing.assert_allclose(found["params"], queries[:, :2] / 3.0, atol=1e-12)
+    np.testing.assert_allclose(found["points"][:, 2], 0.0, atol=1e-12)
+    np.testing.assert_allclose(found["distances"], np.abs(queries[:, 2]), atol=1e-12)
+
+
+def test_closest_points_on_a_curved_surface_beat_a_dense_search_and_are_stationary():
+    rng = np.random.default_rng(4)
+    i, j = np.meshgrid(np.arange(6.0), np.arange(6.0), indexing="ij")
+    grid = np.stack([i, j, 0.4 * rng.standard_normal(i.shape)], axis=-1)
+    surface = splineface.BSplineSurface(grid)
+    dense = surface.eval(grid_params(201))
+    queries = surface.eval(rng.uniform(0, 1, (40, 2))) + 0.3 * rng.standard_normal((40, 3))
+    found = surface.closest(queries)
+    for q, d in zip(queries, found["distances"]):
+        assert d <= np.min(np.linalg.norm(dense - q, axis=1)) + 1e-9
+    # Inside the domain the residual is normal to the surface.
+    inside = np.all((found["params"] > 1e-6) & (found["params"] < 1 - 1e-6), axis=1)
+    d = surface.derivatives(found["params"][inside], order=1)
+    r = queries[inside] - found["points"][inside]
+    for du, dv, residual in zip(d[:, 1, 0], d[:, 0, 1], r):
+        scale = np.linalg.norm(residual) + 1e-300
+        assert abs(du @ residual) <= 1e-8 * scale * np.linalg.norm(du)
+        assert abs(dv @ residual) <= 1e-8 * scale * np.linalg.norm(dv)
+
+
+def test_step_text_is_the_whole_surface_or_a_trimmed_face():
+    i, j = np.meshgrid(np.arange(5.0), np.arange(5.0), indexing="ij")
+    surface = splineface.BSplineSurface(np.stack([i, j, (i - 2) * (j - 2) / 4], axis=-1))
+    whole = surface.to_step(name="patch")
+    assert whole.startswith("ISO-10303-21;") and "B_SPLINE_SURFACE_WITH_KNOTS('patch'" in whole
+    assert "ADVANCED_FACE" not in whole
+    triangle = np.array([[0.1, 0.1], [0.9, 0.2], [0.5, 0.9]])
+    trimmed = surface.to_step(trim=triangle)
+    assert trimmed.count("ADVANCED_FACE(") == 1
+    assert trimmed.count("B_SPLINE_CURVE_WITH_KNOTS(") == 2  # in space and in (u, v)
+    with pytest.raises(ValueError, match="trim"):
+        surface.to_step(trim=triangle[:2])
+    with pytest.raises(ValueError, match="trim"):
+        surface.to_step(trim=triangle + 1.0)

@@ -79,6 +79,10 @@ class BSplineSurface:
         """(n, order + 1, order + 1, 3): [s, k, l] = d^(k+l) F / du^k dv^l at params[s]."""
     def normal(self, params: _Floats) -> npt.NDArray[np.float64]:
         """Unit normals (n, 3), NaN where the surface is degenerate."""
+    def closest(self, points: _Floats) -> dict[str, npt.NDArray[np.float64]]:
+        """The closest points to points (n, 3): params (n, 2), points (n, 3), distances (n,)."""
+    def to_step(self, name: str = "surface", description: str = "", trim: _Floats | None = None) -> str:
+        """STEP AP214 text of the exact surface, whole or trimmed to a (u, v) polygon (m, 2)."""
     @property
     def control_points(self) -> npt.NDArray[np.float64]: ...
     @property
