@@ -1227,10 +1227,29 @@ impl TryFrom<RawReference> for ReferenceFace {
         if raw.surface.domain_u() != (0.0, 1.0) || raw.surface.domain_v() != (0.0, 1.0) {
             return Err("the surface's domain is not [0, 1]²".to_owned());
         }
-        if raw.clip.len() < 3 {
+        for (knots, name) in [(raw.surface.knots_u(), "u"), (raw.surface.knots_v(), "v")] {
+            // Where the surface jumps, its exact export (the trimmed STEP face's edge, the
+            // image of the clip polygon) would not be one curve, and no face tears.
+            let (start, end) = knots.domain();
+            let all = knots.knots();
+            if let Some(&k) = all
+                .iter()
+                .find(|&&k| k > start && k < end && all.iter().filter(|&&x| x == k).count() > knots.degree())
+            {
+                return Err(format!(
+                    "the surface is discontinuous at {name} = {k} (a knot repeated more than its degree)"
+                ));
+            }
+        }
+        let mut distinct = raw.clip.clone();
+        distinct.dedup();
+        if distinct.len() > 1 && distinct.first() == distinct.last() {
+            distinct.pop();
+        }
+        if distinct.len() < 3 {
             return Err(format!(
-                "clip polygon has {} points, at least 3 needed",
-                raw.clip.len()
+                "clip polygon has {} distinct points, at least 3 needed",
+                distinct.len()
             ));
         }
         if let Some(k) = raw

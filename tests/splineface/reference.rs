@@ -302,6 +302,25 @@ fn malformed_references_are_refused() {
             "clip point 2 lies outside",
         ),
         (
+            Box::new(|v| {
+                let first = v["clip"][0].clone();
+                for p in v["clip"].as_array_mut().unwrap() {
+                    *p = first.clone();
+                }
+            }),
+            "clip polygon has 1 distinct points",
+        ),
+        (
+            // Knots 8 to 11 (degree 3) made equal: the surface tears along that line.
+            Box::new(|v| {
+                let knot = v["surface"]["knots_u"]["knots"][8].clone();
+                for k in 9..12 {
+                    v["surface"]["knots_u"]["knots"][k] = knot.clone();
+                }
+            }),
+            "the surface is discontinuous at u",
+        ),
+        (
             Box::new(|v| v["frame"]["x"] = serde_json::json!([1.0, -1.0])),
             "frame is not a finite box",
         ),
