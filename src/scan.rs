@@ -294,6 +294,125 @@ fn cell_of(t: Real, n: usize) -> usize {
     ((t * n as Real) as usize).min(n - 1)
 }
 
+/// The footprint's grid for `points` scan points: about eight points a cell where they cover
+/// the rectangle, from 2 to [`RESIDUAL_SIDE`] cells a side (a sparse cloud would leave gaps
+/// between its points' cells at the heatmap's resolution).
+fn footprint_side(points: usize) -> usize {
+    ((points as Real / 8.0).sqrt() as usize).clamp(2, RESIDUAL_SIDE)
+}
+
+/// The cells of the largest 4-connected group of `cells` (an `n × n` grid, row `i` along `u`).
+fn largest_group(cells: &[bool], n: usize) -> Vec<bool> {
+    let mut group = vec![u32::MAX; n * n];
+    let mut sizes: Vec<usize> = Vec::new();
+    let mut queue = Vec::new();
+    for seed in 0..n * n {
+        if !cells[seed] || group[seed] != u32::MAX {
+            continue;
+        }
+        let id = sizes.len() as u32;
+        let mut size = 0;
+        group[seed] = id;
+        queue.push(seed);
+        while let Some(c) = queue.pop() {
+            size += 1;
+            for next in neighbours(c, n) {
+                if cells[next] && group[next] == u32::MAX {
+                    group[next] = id;
+                    queue.push(next);
+                }
+            }
+        }
+        sizes.push(size);
+    }
+    let Some(best) = (0..sizes.len()).max_by_key(|&k| (sizes[k], std::cmp::Reverse(k))) else {
+        return vec![false; n * n];
+    };
+    group.iter().map(|&g| g == best as u32).collect()
+}
+
+/// The 4-neighbours of cell `c` of an `n × n` grid.
+fn neighbours(c: usize, n: usize) -> impl Iterator<Item = usize> {
+    let (i, j) = (c / n, c % n);
+    [
+        (i > 0).then(|| c - n),
+        (i + 1 < n).then(|| c + n),
+        (j > 0).then(|| c - 1),
+        (j + 1 < n).then(|| c + 1),
+    ]
+    .into_iter()
+    .flatten()
+}
+
+/// The empty cells of `cells` joined to the grid's border through empty cells.
+fn reachable_from_border(cells: &[bool], n: usize) -> Vec<bool> {
+    let mut reached = vec![false; n * n];
+    let mut queue: Vec<usize> = (0..n * n)
+        .filter(|&c| {
+            let (i, j) = (c / n, c % n);
+            (i == 0 || j == 0 || i == n - 1 || j == n - 1) && !cells[c]
+        })
+        .collect();
+    for &c in &queue {
+        reached[c] = true;
+    }
+    while let Some(c) = queue.pop() {
+        for next in neighbours(c, n) {
+            if !cells[next] && !reached[next] {
+                reached[next] = true;
+                queue.push(next);
+            }
+        }
+    }
+    reached
+}
+
+/// The outline of a 4-connected, hole-free region of an `n × n` grid with no cells meeting at a
+/// corner alone, counter-clockwise in `(u, v)`, collinear vertices left out; empty for an empty
+/// region.
+fn outline(region: &[bool], n: usize) -> Vec<nalgebra::Point2<Real>> {
+    let inside = |i: isize, j: isize| {
+        i >= 0 && j >= 0 && (i as usize) < n && (j as usize) < n && region[i as usize * n + j as usize]
+    };
+    // Each boundary edge between corner (i, j) points, with the region on its left; in such a
+    // region every corner starts at most one.
+    let mut next = std::collections::HashMap::new();
+    for c in (0..n * n).filter(|&c| region[c]) {
+        let (i, j) = ((c / n) as isize, (c % n) as isize);
+        if !inside(i, j - 1) {
+            next.insert((i, j), (i + 1, j));
+        }
+        if !inside(i + 1, j) {
+            next.insert((i + 1, j), (i + 1, j + 1));
+        }
+        if !inside(i, j + 1) {
+            next.insert((i + 1, j + 1), (i, j + 1));
+        }
+        if !inside(i - 1, j) {
+            next.insert((i, j + 1), (i, j));
+        }
+    }
+    let Some(&first) = next.keys().min() else {
+        return Vec::new();
+    };
+    let mut corners = vec![first];
+    let mut at = next[&first];
+    while at != first {
+        corners.push(at);
+        at = next[&at];
+    }
+    debug_assert_eq!(corners.len(), next.len(), "one loop");
+    let m = corners.len();
+    let turns = |k: usize| {
+        let (a, b, c) = (corners[(k + m - 1) % m], corners[k], corners[(k + 1) % m]);
+        (b.0 - a.0) * (c.1 - b.1) != (b.1 - a.1) * (c.0 - b.0)
+    };
+    (0..m)
+        .filter(|&k| turns(k))
+        .map(|k| nalgebra::Point2::new(corners[k].0 as Real / n as Real, corners[k].1 as Real / n as Real))
+        .collect()
+}
+
 /// The share of `points` lying in cells of the plane's rectangle whose heights hold a gap (see
 /// the module documentation).
 fn layered_share(points: &[Point3<Real>], plane: &ScanPlane, params: &[[Real; 2]]) -> Real {
@@ -688,6 +807,52 @@ impl ScanFit {
         Ok(crate::mesh::TriangleMesh::new(grid, triangles)?)
     }
 
+    /// The scan's footprint in `(u, v)` as a simple polygon, counter-clockwise: the outline of
+    /// the cells of a `side × side` grid that hold scan points, keeping the largest 4-connected
+    /// group of them, with its holes filled and its cells that touch only at a corner joined
+    /// (so the outline is one simple loop); vertices on cell corners, collinear ones left
+    /// out. Empty when no cell holds a point (`side` 0, or no points). The STEP file of
+    /// `fit-surface` is trimmed to it, so that CAD shows the surface where the scan was, not
+    /// the extrapolated corners of its rectangle.
+    pub fn footprint(&self, side: usize) -> Vec<nalgebra::Point2<Real>> {
+        let n = side;
+        if n == 0 || self.params.is_empty() {
+            return Vec::new();
+        }
+        let mut filled = vec![false; n * n];
+        for uv in &self.params {
+            filled[cell_of(uv[0], n) * n + cell_of(uv[1], n)] = true;
+        }
+        let largest = largest_group(&filled, n);
+        let mut region: Vec<bool> = largest;
+        // Fill holes and join corner-only contacts until neither changes anything.
+        loop {
+            let outside = reachable_from_border(&region, n);
+            for (cell, out) in region.iter_mut().zip(&outside) {
+                *cell = !out;
+            }
+            let mut joined = false;
+            for i in 1..n {
+                for j in 1..n {
+                    let [a, b, c, d] =
+                        [(i - 1, j - 1), (i, j - 1), (i - 1, j), (i, j)].map(|(x, y)| x * n + y);
+                    let diagonal = (region[a] && region[d] && !region[b] && !region[c])
+                        || (region[b] && region[c] && !region[a] && !region[d]);
+                    if diagonal {
+                        for k in [a, b, c, d] {
+                            region[k] = true;
+                        }
+                        joined = true;
+                    }
+                }
+            }
+            if !joined {
+                break;
+            }
+        }
+        outline(&region, n)
+    }
+
     /// The report of the fit as JSON: the scan's name, points, degree, grid, knots, rounds,
     /// tolerance, residuals (RMS, 99th percentile, largest), the plane and `seconds`.
     pub fn report_json(&self, scan: &str, options: &ScanFitOptions, seconds: Real) -> String {
@@ -731,7 +896,9 @@ impl ScanFit {
     ///
     /// # Errors
     /// [`ScanError::Option`] for an output whose extension names no format;
-    /// [`ScanError::Encode`] if the heatmap cannot be encoded.
+    /// [`ScanError::Encode`] if the heatmap cannot be encoded; [`ScanError::Fit`] if the STEP
+    /// face cannot be trimmed to [`ScanFit::footprint`] (a surface that tears along a knot
+    /// line; not one `fit_scan` makes).
     pub fn files(
         &self,
         out: &Path,
@@ -755,10 +922,10 @@ impl ScanFit {
                     name: &name,
                     description: "a B-spline surface fitted to a scan by splineface fit-surface, in the scan's units",
                     millimetres: false,
-                    trim: &[],
+                    trim: &self.footprint(footprint_side(self.params.len())),
                 },
             )
-            .expect("an untrimmed surface always encodes")
+            .map_err(ScanError::Fit)?
             .into_bytes(),
             None => return Err(bad("out", out, "a .json or .step file")),
         };

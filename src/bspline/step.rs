@@ -15,8 +15,9 @@ pub struct StepOptions<'a> {
     pub name: &'a str,
     /// A line of description (units, origin).
     pub description: &'a str,
-    /// The length unit's SI prefix: `true` for millimetres, `false` for no unit conversion
-    /// (the file still declares millimetres; the description says what the numbers are).
+    /// The declared length unit: `true` for millimetres, `false` for metres (the SI unit with
+    /// no prefix; the numbers are written as they are either way, and the description says
+    /// what they are).
     pub millimetres: bool,
     /// A simple closed polygon in the surface's `(u, v)` domain to trim it to (the last
     /// vertex may repeat the first or not; either orientation), or empty for the whole

@@ -327,6 +327,9 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
     );
     let step = std::fs::read_to_string(&out).unwrap();
     assert!(step.starts_with("ISO-10303-21;") && step.contains("B_SPLINE_SURFACE_WITH_KNOTS"));
+    // Trimmed to the disc's footprint: one face, bounded in space and in (u, v).
+    assert_eq!(step.matches("=ADVANCED_FACE(").count(), 1);
+    assert_eq!(step.matches("=B_SPLINE_CURVE_WITH_KNOTS(").count(), 2);
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("cap.residuals.json")).unwrap()).unwrap();
     assert_eq!(report["points"], 20_000);
@@ -421,4 +424,100 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
     assert!(std::fs::read_to_string(&cloud).unwrap().ends_with("1 2 3\n"));
     assert_eq!(std::fs::read(&scan).unwrap(), before);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Whether `polygon` is simple: no two of its sides cross or touch but neighbours at their
+/// shared corner (sides are axis-parallel here, so a bounding-box overlap test is exact).
+fn is_simple(polygon: &[nalgebra::Point2<Real>]) -> bool {
+    let m = polygon.len();
+    let side = |k: usize| (polygon[k], polygon[(k + 1) % m]);
+    for a in 0..m {
+        for b in a + 1..m {
+            if b == a + 1 || (a == 0 && b == m - 1) {
+                continue;
+            }
+            let ((p, q), (r, t)) = (side(a), side(b));
+            let overlap =
+                |x0: Real, x1: Real, y0: Real, y1: Real| x0.min(x1) <= y0.max(y1) && y0.min(y1) <= x0.max(x1);
+            if overlap(p.x, q.x, r.x, t.x) && overlap(p.y, q.y, r.y, t.y) {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+#[test]
+fn the_footprint_is_the_outline_of_the_cells_the_scan_covers() {
+    use splineface::geometry::{polygon_contains, signed_area};
+    let options = ScanFitOptions {
+        grid: 6,
+        normal: Some(Vector3::z()),
+        ..ScanFitOptions::default()
+    };
+    let flat = |_: Real, _: Real| 0.0;
+    // A disc: a simple counter-clockwise lattice polygon holding every point, a little more
+    // than π/4 of the rectangle (the cells its rim crosses count whole).
+    let points = disc(40_000, 8, &Rotation3::identity(), flat);
+    let fit = fit_scan(&points, &options).unwrap();
+    let side = 64;
+    let outline = fit.footprint(side);
+    let area = signed_area(&outline);
+    assert!(
+        area > std::f64::consts::FRAC_PI_4 && area < std::f64::consts::FRAC_PI_4 + 4.0 * 2.0 / side as Real,
+        "{area}"
+    );
+    assert!(is_simple(&outline));
+    for p in &outline {
+        for c in [p.x, p.y] {
+            assert_eq!(
+                (c * side as Real).round(),
+                c * side as Real,
+                "{p} is not a cell corner"
+            );
+        }
+    }
+    let inside = |uv: &[Real; 2]| {
+        // Nudged toward the centre: a point on a cell's edge may count either way.
+        let q = nalgebra::Point2::new(uv[0], uv[1]);
+        polygon_contains(&outline, q + (nalgebra::Point2::new(0.5, 0.5) - q) * 1e-9)
+    };
+    assert!(fit.params.iter().all(inside));
+
+    // A ring: its hole is filled, so its centre lies inside.
+    let ring: Vec<Point3<Real>> = disc(40_000, 9, &Rotation3::identity(), flat)
+        .into_iter()
+        .filter(|p| p.x * p.x + p.y * p.y > 0.25)
+        .collect();
+    let fit = fit_scan(&ring, &options).unwrap();
+    let outline = fit.footprint(side);
+    assert!(is_simple(&outline));
+    assert!(polygon_contains(&outline, nalgebra::Point2::new(0.5, 0.5)));
+    assert!(signed_area(&outline) > std::f64::consts::FRAC_PI_4);
+
+    // Two islands: the larger is kept, the other left out.
+    let mut islands = disc(40_000, 10, &Rotation3::identity(), flat);
+    let small: Vec<Point3<Real>> = disc(2_000, 11, &Rotation3::identity(), flat)
+        .into_iter()
+        .map(|p| Point3::new(0.3 * p.x + 2.5, 0.3 * p.y, 0.0))
+        .collect();
+    islands.extend(&small);
+    let fit = fit_scan(&islands, &options).unwrap();
+    let outline = fit.footprint(side);
+    let (big, other) = fit.params.split_at(40_000);
+    assert!(big.iter().all(inside_of(&outline)));
+    assert!(!other.iter().any(inside_of(&outline)));
+
+    // Nothing to outline.
+    assert!(fit.footprint(0).is_empty());
+}
+
+fn inside_of(outline: &[nalgebra::Point2<Real>]) -> impl Fn(&[Real; 2]) -> bool + '_ {
+    move |uv| {
+        let q = nalgebra::Point2::new(uv[0], uv[1]);
+        let centre = splineface::geometry::bounding_box(outline)
+            .map(|(a, b)| nalgebra::center(&a, &b))
+            .unwrap();
+        splineface::geometry::polygon_contains(outline, q + (centre - q) * 1e-9)
+    }
 }
