@@ -305,6 +305,17 @@ impl SpanPolynomials {
     }
 }
 
+/// Knots of `degree` clamped to `[0, 1]` about the `inner` values (sorted here), for tests.
+#[cfg(test)]
+pub(crate) fn clamped(degree: usize, mut inner: Vec<Real>) -> KnotVector {
+    inner.sort_by(Real::total_cmp);
+    let knots: Vec<Real> = std::iter::repeat_n(0.0, degree + 1)
+        .chain(inner)
+        .chain(std::iter::repeat_n(1.0, degree + 1))
+        .collect();
+    KnotVector::new(degree, knots).expect("clamped knots in [0, 1]")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -322,12 +333,7 @@ mod tests {
             if degree > 0 {
                 inner.push(inner[0]); // a repeated knot: an empty span in between
             }
-            inner.sort_by(Real::total_cmp);
-            let knots: Vec<Real> = std::iter::repeat_n(0.0, degree + 1)
-                .chain(inner)
-                .chain(std::iter::repeat_n(1.0, degree + 1))
-                .collect();
-            let knots = KnotVector::new(degree, knots).unwrap();
+            let knots = clamped(degree, inner);
             let polynomials = SpanPolynomials::new(&knots);
             let k = knots.knots();
             let w = degree + 1;

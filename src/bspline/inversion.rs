@@ -747,7 +747,6 @@ impl BSplineSurface {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bspline::KnotVector;
     use crate::random::Lcg;
 
     /// The bucketed tree finds a point at the nearest distance (brute force), on random points
@@ -786,13 +785,7 @@ mod tests {
         let mut rng = Lcg(9);
         for degree in [2, 3] {
             let n = 9;
-            let mut inner: Vec<Real> = (0..n - degree - 1).map(|_| rng.next()).collect();
-            inner.sort_by(Real::total_cmp);
-            let knots: Vec<Real> = std::iter::repeat_n(0.0, degree + 1)
-                .chain(inner)
-                .chain(std::iter::repeat_n(1.0, degree + 1))
-                .collect();
-            let k = KnotVector::new(degree, knots).unwrap();
+            let k = crate::bspline::basis::clamped(degree, (0..n - degree - 1).map(|_| rng.next()).collect());
             let grid = (0..n * n)
                 .map(|_| Point3::new(rng.next(), rng.next(), rng.next()))
                 .collect();
