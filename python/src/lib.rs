@@ -397,12 +397,6 @@ impl BSplineSurfaceHandle {
                 .collect(),
             None => Vec::new(),
         };
-        if trim.len() == 1 || trim.len() == 2 {
-            return Err(PyValueError::new_err(format!(
-                "trim: {} vertices; a polygon needs at least 3",
-                trim.len()
-            )));
-        }
         splineface::bspline::encode_step(
             &self.surface,
             &splineface::bspline::StepOptions {

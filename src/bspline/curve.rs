@@ -278,7 +278,10 @@ impl BSplineSurface {
             }
         }
         if path.len() < 2 {
-            return Err(BSplineError::PolylineTooShort { distinct: path.len() });
+            return Err(BSplineError::PolylineTooShort {
+                distinct: path.len(),
+                needed: 2,
+            });
         }
         let degree = self.degree_u() + self.degree_v();
         if degree > MAX_DEGREE {

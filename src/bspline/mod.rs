@@ -170,11 +170,14 @@ pub enum BSplineError {
         /// Points the knot vector needs.
         expected: usize,
     },
-    /// A polyline in a surface's parameter domain has fewer than two distinct vertices.
-    #[error("the polyline has {distinct} distinct vertices; at least 2 are needed")]
+    /// A polyline (2 distinct vertices at least) or a polygon (3) in a surface's parameter
+    /// domain has too few distinct vertices.
+    #[error("{distinct} distinct vertices given; at least {needed} are needed")]
     PolylineTooShort {
         /// Distinct consecutive vertices given.
         distinct: usize,
+        /// The least number: 2 for a polyline, 3 for a polygon.
+        needed: usize,
     },
     /// The surface jumps across a knot line inside its domain (degree 0 there, or an interior
     /// knot of multiplicity `degree + 1`), so the image of a path across it is not one curve.

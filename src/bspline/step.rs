@@ -210,6 +210,7 @@ impl TrimLoop {
         if polygon.len() < 3 {
             return Err(BSplineError::PolylineTooShort {
                 distinct: polygon.len(),
+                needed: 3,
             });
         }
         if crate::geometry::signed_area(&polygon) < 0.0 {

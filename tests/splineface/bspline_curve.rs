@@ -157,7 +157,7 @@ proptest! {
         };
         let image = surface.image_of_polyline(&path);
         if distinct.len() < 2 {
-            prop_assert_eq!(image.unwrap_err(), BSplineError::PolylineTooShort { distinct: 1 });
+            prop_assert_eq!(image.unwrap_err(), BSplineError::PolylineTooShort { distinct: 1, needed: 2 });
             return Ok(());
         }
         if jumps(surface.knots_u()) || jumps(surface.knots_v()) {
@@ -197,11 +197,17 @@ fn polyline_images_refuse_what_is_not_a_curve_on_the_surface() {
     let a = Point2::new(0.2, 0.3);
     assert_eq!(
         surface.image_of_polyline(&[a, a]).unwrap_err(),
-        BSplineError::PolylineTooShort { distinct: 1 }
+        BSplineError::PolylineTooShort {
+            distinct: 1,
+            needed: 2
+        }
     );
     assert_eq!(
         surface.image_of_polyline(&[]).unwrap_err(),
-        BSplineError::PolylineTooShort { distinct: 0 }
+        BSplineError::PolylineTooShort {
+            distinct: 0,
+            needed: 2
+        }
     );
     assert!(matches!(
         surface.image_of_polyline(&[a, Point2::new(1.2, 0.3)]),
