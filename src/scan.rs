@@ -398,8 +398,14 @@ fn outline(region: &[bool], n: usize) -> Vec<nalgebra::Point2<Real>> {
     let mut corners = vec![first];
     let mut at = next[&first];
     while at != first {
+        // One loop through every edge, by the region's making; were it not, no outline.
+        let to = next.get(&at).filter(|_| corners.len() < next.len());
+        let Some(&to) = to else {
+            debug_assert!(false, "the boundary is not one loop");
+            return Vec::new();
+        };
         corners.push(at);
-        at = next[&at];
+        at = to;
     }
     debug_assert_eq!(corners.len(), next.len(), "one loop");
     let m = corners.len();
