@@ -179,6 +179,9 @@ pub enum BSplineError {
         /// The least number: 2 for a polyline, 3 for a polygon.
         needed: usize,
     },
+    /// A trimming polygon encloses no area (its vertices lie on one line).
+    #[error("the trim polygon encloses no area: its vertices lie on one line")]
+    DegenerateTrim,
     /// The surface jumps across a knot line inside its domain (degree 0 there, or an interior
     /// knot of multiplicity `degree + 1`), so the image of a path across it is not one curve.
     #[error(

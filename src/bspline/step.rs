@@ -96,8 +96,8 @@ fn list<T>(items: &[T], f: impl Fn(&T) -> String) -> String {
 ///
 /// # Errors
 /// From [`BSplineSurface::image_of_polyline`], for a trim polygon outside the domain, with
-/// fewer than 3 distinct vertices ([`BSplineError::PolylineTooShort`]) or on a surface that
-/// jumps across a knot line.
+/// fewer than 3 distinct vertices ([`BSplineError::PolylineTooShort`]), enclosing no area
+/// ([`BSplineError::DegenerateTrim`]) or on a surface that jumps across a knot line.
 pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Result<String, BSplineError> {
     let trim = if options.trim.is_empty() {
         None
@@ -213,7 +213,11 @@ impl TrimLoop {
                 needed: 3,
             });
         }
-        if crate::geometry::signed_area(&polygon) < 0.0 {
+        let area = crate::geometry::signed_area(&polygon);
+        if area == 0.0 {
+            return Err(BSplineError::DegenerateTrim);
+        }
+        if area < 0.0 {
             polygon.reverse();
         }
         polygon.push(polygon[0]);

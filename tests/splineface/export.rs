@@ -296,6 +296,14 @@ fn a_trim_that_is_not_a_polygon_in_the_domain_is_refused() {
             ],
             "outside",
         ),
+        (
+            vec![
+                Point2::new(0.2, 0.2),
+                Point2::new(0.4, 0.3),
+                Point2::new(0.6, 0.4),
+            ],
+            "collinear",
+        ),
     ] {
         let result = encode_step(
             face.surface(),
@@ -312,6 +320,10 @@ fn a_trim_that_is_not_a_polygon_in_the_domain_is_refused() {
                     distinct: 2,
                     needed: 3
                 }
+            ),
+            "collinear" => assert_eq!(
+                result.unwrap_err(),
+                splineface::bspline::BSplineError::DegenerateTrim
             ),
             _ => assert!(result.is_err(), "{what}"),
         }
