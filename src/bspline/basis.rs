@@ -256,6 +256,7 @@ impl SpanPolynomials {
     /// [`SpanPolynomials::derivatives`] to order 2 for a degree known at compile time
     /// (`W = p + 1`): `[values, first, second]`, loops the compiler unrolls.
     #[inline(always)]
+    #[allow(clippy::needless_range_loop)] // r indexes the three rows of `out`
     pub(crate) fn derivatives_fixed<const W: usize>(&self, span: usize, u: Real) -> [[Real; W]; 3] {
         debug_assert_eq!(self.degree + 1, W);
         let [start, inverse] = self.starts[span];
@@ -263,12 +264,7 @@ impl SpanPolynomials {
         let c = &self.coefficients[span * W * W..(span + 1) * W * W];
         let mut out = [[0.0; W]; 3];
         for r in 0..W {
-            let (mut value, mut first, mut second) = (c[(W - 1) * W + r], 0.0, 0.0);
-            for k in (0..W - 1).rev() {
-                second = second * t + 2.0 * first;
-                first = first * t + value;
-                value = value * t + c[k * W + r];
-            }
+            let [value, first, second] = horner(c, W, r, t);
             out[0][r] = value;
             out[1][r] = first * inverse;
             out[2][r] = second * inverse * inverse;
@@ -281,19 +277,12 @@ impl SpanPolynomials {
     #[inline]
     pub(crate) fn derivatives(&self, span: usize, u: Real, order: usize, out: &mut [Real]) {
         debug_assert!(order <= 2);
-        let p = self.degree;
-        let w = p + 1;
+        let w = self.degree + 1;
         let [start, inverse] = self.starts[span];
         let t = (u - start) * inverse;
         let c = self.coefficients(span);
         for r in 0..w {
-            // Horner for the value and its first two derivatives in t.
-            let (mut value, mut first, mut second) = (c[p * w + r], 0.0, 0.0);
-            for k in (0..p).rev() {
-                second = second * t + 2.0 * first;
-                first = first * t + value;
-                value = value * t + c[k * w + r];
-            }
+            let [value, first, second] = horner(c, w, r, t);
             out[r] = value;
             if order >= 1 {
                 out[w + r] = first * inverse;
@@ -303,6 +292,20 @@ impl SpanPolynomials {
             }
         }
     }
+}
+
+/// Basis function `r`'s value and first two derivatives in the span's own parameter `t`, by
+/// Horner's rule over its coefficients (`cₖ[r]` at `k·w + r`, `w = p + 1`). Inlined, so that
+/// a `w` known at compile time unrolls the loop.
+#[inline(always)]
+fn horner(c: &[Real], w: usize, r: usize, t: Real) -> [Real; 3] {
+    let (mut value, mut first, mut second) = (c[(w - 1) * w + r], 0.0, 0.0);
+    for k in (0..w - 1).rev() {
+        second = second * t + 2.0 * first;
+        first = first * t + value;
+        value = value * t + c[k * w + r];
+    }
+    [value, first, second]
 }
 
 /// Knots of `degree` clamped to `[0, 1]` about the `inner` values (sorted here), for tests.
