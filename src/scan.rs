@@ -301,70 +301,63 @@ fn footprint_side(points: usize) -> usize {
     ((points as Real / 8.0).sqrt() as usize).clamp(2, RESIDUAL_SIDE)
 }
 
-/// The cells of the largest 4-connected group of `cells` (an `n × n` grid, row `i` along `u`).
+/// The cells of the largest 4-connected group of `cells` (an `n × n` grid, row `i` along `u`;
+/// the first in scan order among equals).
 fn largest_group(cells: &[bool], n: usize) -> Vec<bool> {
-    let mut group = vec![u32::MAX; n * n];
-    let mut sizes: Vec<usize> = Vec::new();
-    let mut queue = Vec::new();
+    let mut seen = vec![false; n * n];
+    let mut largest: Vec<usize> = Vec::new();
     for seed in 0..n * n {
-        if !cells[seed] || group[seed] != u32::MAX {
-            continue;
-        }
-        let id = sizes.len() as u32;
-        let mut size = 0;
-        group[seed] = id;
-        queue.push(seed);
-        while let Some(c) = queue.pop() {
-            size += 1;
-            for next in neighbours(c, n) {
-                if cells[next] && group[next] == u32::MAX {
-                    group[next] = id;
-                    queue.push(next);
-                }
+        if cells[seed] && !seen[seed] {
+            let group = flood(n, vec![seed], |c| cells[c], &mut seen);
+            if group.len() > largest.len() {
+                largest = group;
             }
         }
-        sizes.push(size);
     }
-    let Some(best) = (0..sizes.len()).max_by_key(|&k| (sizes[k], std::cmp::Reverse(k))) else {
-        return vec![false; n * n];
-    };
-    group.iter().map(|&g| g == best as u32).collect()
-}
-
-/// The 4-neighbours of cell `c` of an `n × n` grid.
-fn neighbours(c: usize, n: usize) -> impl Iterator<Item = usize> {
-    let (i, j) = (c / n, c % n);
-    [
-        (i > 0).then(|| c - n),
-        (i + 1 < n).then(|| c + n),
-        (j > 0).then(|| c - 1),
-        (j + 1 < n).then(|| c + 1),
-    ]
-    .into_iter()
-    .flatten()
+    let mut out = vec![false; n * n];
+    for c in largest {
+        out[c] = true;
+    }
+    out
 }
 
 /// The empty cells of `cells` joined to the grid's border through empty cells.
 fn reachable_from_border(cells: &[bool], n: usize) -> Vec<bool> {
-    let mut reached = vec![false; n * n];
-    let mut queue: Vec<usize> = (0..n * n)
+    let border: Vec<usize> = (0..n * n)
         .filter(|&c| {
             let (i, j) = (c / n, c % n);
             (i == 0 || j == 0 || i == n - 1 || j == n - 1) && !cells[c]
         })
         .collect();
-    for &c in &queue {
+    let mut reached = vec![false; n * n];
+    flood(n, border, |c| !cells[c], &mut reached);
+    reached
+}
+
+/// Marks in `reached` the cells of an `n × n` grid joined to `seeds` (passable themselves)
+/// through 4-neighbours that are `passable` and not yet reached; returns the cells it marked.
+fn flood(n: usize, seeds: Vec<usize>, passable: impl Fn(usize) -> bool, reached: &mut [bool]) -> Vec<usize> {
+    for &c in &seeds {
         reached[c] = true;
     }
+    let (mut queue, mut marked) = (seeds.clone(), seeds);
     while let Some(c) = queue.pop() {
-        for next in neighbours(c, n) {
-            if !cells[next] && !reached[next] {
+        let (i, j) = (c / n, c % n);
+        let around = [
+            (i > 0).then(|| c - n),
+            (i + 1 < n).then(|| c + n),
+            (j > 0).then(|| c - 1),
+            (j + 1 < n).then(|| c + 1),
+        ];
+        for next in around.into_iter().flatten() {
+            if passable(next) && !reached[next] {
                 reached[next] = true;
                 queue.push(next);
+                marked.push(next);
             }
         }
     }
-    reached
+    marked
 }
 
 /// The outline of a 4-connected, hole-free region of an `n × n` grid with no cells meeting at a
