@@ -1230,12 +1230,7 @@ impl TryFrom<RawReference> for ReferenceFace {
         for (knots, name) in [(raw.surface.knots_u(), "u"), (raw.surface.knots_v(), "v")] {
             // Where the surface jumps, its exact export (the trimmed STEP face's edge, the
             // image of the clip polygon) would not be one curve, and no face tears.
-            let (start, end) = knots.domain();
-            let all = knots.knots();
-            if let Some(&k) = all
-                .iter()
-                .find(|&&k| k > start && k < end && all.iter().filter(|&&x| x == k).count() > knots.degree())
-            {
+            if let Some((k, _)) = knots.jump() {
                 return Err(format!(
                     "the surface is discontinuous at {name} = {k} (a knot repeated more than its degree)"
                 ));

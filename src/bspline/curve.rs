@@ -382,24 +382,16 @@ impl BSplineSurface {
 
 /// The distinct knot values strictly inside the domain; an error where the spline jumps there.
 fn interior_knot_lines(knots: &KnotVector, direction: Direction) -> Result<Vec<Real>, BSplineError> {
-    let (start, end) = knots.domain();
-    let degree = knots.degree();
-    let mut lines: Vec<Real> = Vec::new();
-    for &k in knots.knots().iter().filter(|&&k| k > start && k < end) {
-        if lines.last() != Some(&k) {
-            lines.push(k);
-        }
-        let multiplicity = knots.knots().iter().filter(|&&x| x == k).count();
-        if multiplicity > degree {
-            return Err(BSplineError::DiscontinuousSurface {
-                direction,
-                value: k,
-                multiplicity,
-                degree,
-            });
-        }
+    if let Some((value, multiplicity)) = knots.jump() {
+        return Err(BSplineError::DiscontinuousSurface {
+            direction,
+            value,
+            multiplicity,
+            degree: knots.degree(),
+        });
     }
-    Ok(lines)
+    let breaks = knots.breakpoints();
+    Ok(breaks[1..breaks.len() - 1].to_vec())
 }
 
 /// Bernstein collocation of one degree at the Chebyshev–Lobatto nodes `sᵢ = (1 − cos(iπ/p))/2`

@@ -322,6 +322,16 @@ impl KnotVector {
         values
     }
 
+    /// The first knot inside the domain repeated more than the degree, with its multiplicity:
+    /// where a spline on these knots may jump (it is C⁻¹ there); `None` for a continuous one.
+    pub(crate) fn jump(&self) -> Option<(Real, usize)> {
+        let k = &self.knots;
+        k.iter()
+            .filter(|&&x| x > self.start && x < self.end)
+            .map(|&x| (x, super::refine::multiplicity(k, x)))
+            .find(|&(_, m)| m > self.degree)
+    }
+
     /// `Ok` when `value` lies in the domain; else [`BSplineError::ParameterOutOfDomain`] for
     /// `direction` (NaN included).
     pub(crate) fn check_in_domain(
