@@ -230,20 +230,55 @@ fn figures(colours: &[[Real; 3]], texels: &Texels, side: usize, dominant: Option
     }
 }
 
-fn atlas_colours(texture: &FaceTexture, texels: &Texels) -> Vec<[Real; 3]> {
-    let side = texture.atlas.width() as usize;
+/// The atlas's colours (linear) at the compared texels, which index an atlas of side `side`.
+/// An atlas of another side is sampled as a renderer samples it: bilinearly (in linear light)
+/// at each compared texel's centre `(u, v)`, so that a coarser atlas pays for its blur.
+fn atlas_colours(texture: &FaceTexture, texels: &Texels, side: usize) -> Vec<[Real; 3]> {
+    let own = texture.atlas.width() as usize;
+    let at = |c: usize, r: usize| {
+        texture
+            .atlas
+            .get_pixel(c as u32, r as u32)
+            .0
+            .map(|v| linear(Real::from(v)))
+    };
     texels
         .index
         .iter()
         .map(|&k| {
-            texture
-                .atlas
-                .get_pixel((k % side) as u32, (k / side) as u32)
-                .0
-                .map(|v| linear(Real::from(v)))
+            if own == side {
+                return at(k % side, k / side);
+            }
+            // Texel centre (k + ½)/side in the compared atlas, at t·own − ½ in this one.
+            let place = |k: usize| {
+                ((k as Real + 0.5) / side as Real * own as Real - 0.5).clamp(0.0, (own - 1) as Real)
+            };
+            let (x, y) = (place(k % side), place(k / side));
+            let (x0, y0) = (x as usize, y as usize);
+            let (x1, y1) = ((x0 + 1).min(own - 1), (y0 + 1).min(own - 1));
+            let (fx, fy) = (x - x0 as Real, y - y0 as Real);
+            let (a, b, c, d) = (at(x0, y0), at(x1, y0), at(x0, y1), at(x1, y1));
+            std::array::from_fn(|ch| {
+                (a[ch] * (1.0 - fx) + b[ch] * fx) * (1.0 - fy) + (c[ch] * (1.0 - fx) + d[ch] * fx) * fy
+            })
         })
         .collect()
 }
+
+/// The atlas's dominant photos on an atlas of side `side` (nearest texel).
+fn dominant_at(texture: &FaceTexture, side: usize) -> Vec<u16> {
+    let own = texture.atlas.width() as usize;
+    if own == side {
+        return texture.dominant.clone();
+    }
+    let nearest = |k: usize| (((k as Real + 0.5) / side as Real * own as Real) as usize).min(own - 1);
+    (0..side * side)
+        .map(|k| texture.dominant[nearest(k / side) * own + nearest(k % side)])
+        .collect()
+}
+
+/// The side of the atlas whose texels are compared; every atlas is sampled at them.
+const COMPARED_SIDE: usize = 1024;
 
 fn main() -> Result<()> {
     let shared = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared"));
@@ -266,9 +301,18 @@ fn main() -> Result<()> {
     let reference = ReferenceFace::embedded();
     std::fs::create_dir_all(&out)?;
 
+    // The first variant's texels are the ones compared: a 1024² atlas's (the former default),
+    // at which every other atlas is sampled.
     let variants: Vec<(&str, TextureOptions)> = vec![
         (
-            "atlas (default: p = 1, matched, mirror)",
+            "atlas 1024² (the former default)",
+            TextureOptions {
+                size: Some(COMPARED_SIDE as u32),
+                ..TextureOptions::default()
+            },
+        ),
+        (
+            "atlas (default: side from the photos, p = 1, matched, mirror)",
             TextureOptions::default(),
         ),
         (
@@ -307,11 +351,25 @@ fn main() -> Result<()> {
             },
         ),
     ];
+    // Coarser atlases, sampled bilinearly at the default atlas's texels.
+    let variants: Vec<(String, TextureOptions)> = variants
+        .into_iter()
+        .map(|(name, options)| (name.to_string(), options))
+        .chain([768, 512, 384, 256].map(|size| {
+            (
+                format!("atlas {size}²"),
+                TextureOptions {
+                    size: Some(size),
+                    ..TextureOptions::default()
+                },
+            )
+        }))
+        .collect();
     let mut page = String::new();
     writeln!(page, "# Texture atlas against the truth's colours\n")?;
     writeln!(
         page,
-        "Made by `cargo run --release --example texture_eval` (tools/texture_eval.rs): the whole photo path on `lps-head`'s given photo sets, every texel of the face compared with the scan's own colour map where the aligned reconstruction meets the scan (within 3 mm), after the per-channel gain that best maps each texture onto the truth (the photos are lit, the map is not). Levels are sRGB, 0–255. Seam steps: the colour step between neighbouring texels whose dominant photos differ, less the truth's step there; other steps: the same between neighbours elsewhere.\n"
+        "Made by `cargo run --release --example texture_eval` (tools/texture_eval.rs): the whole photo path on `lps-head`'s given photo sets, every texel of the face compared with the scan's own colour map where the aligned reconstruction meets the scan (within 3 mm), after the per-channel gain that best maps each texture onto the truth (the photos are lit, the map is not). Levels are sRGB, 0–255. Seam steps: the colour step between neighbouring texels whose dominant photos differ, less the truth's step there; other steps: the same between neighbours elsewhere. The texels compared are a 1024² atlas's; an atlas of another side is sampled at them bilinearly (in linear light), as a renderer samples it.\n"
     )?;
     writeln!(
         page,
@@ -319,9 +377,9 @@ fn main() -> Result<()> {
     )?;
     writeln!(
         page,
-        "| set | texture | texels | mean error | PSNR (dB) | seam step (pairs) | other step | bake (ms) |"
+        "| set | texture | side | texels | mean error | PSNR (dB) | seam step (pairs) | other step | bake (ms) |"
     )?;
-    writeln!(page, "|---|---|---|---|---|---|---|---|")?;
+    writeln!(page, "|---|---|---|---|---|---|---|---|---|")?;
     for set in ["photos-8", "photos-3"] {
         let photos = photos::read_set(&data.join(set))?;
         let mut inputs = Vec::new();
@@ -361,7 +419,7 @@ fn main() -> Result<()> {
                 None => texels(&result, &subject, &kept)?,
             };
             let texture = result.texture.as_ref().context("no texture")?;
-            let side = texture.atlas.width() as usize;
+            let side = COMPARED_SIDE;
             let bake_ms: Real = result
                 .timings
                 .iter()
@@ -369,14 +427,15 @@ fn main() -> Result<()> {
                 .map(|(_, t)| 1e3 * t)
                 .sum();
             let atlas = figures(
-                &atlas_colours(texture, &texels),
+                &atlas_colours(texture, &texels, side),
                 &texels,
                 side,
-                Some(&texture.dominant),
+                Some(&dominant_at(texture, side)),
             );
             writeln!(
                 page,
-                "| {set} | {name} | {} | {:.2} | {:.2} | {:.2} ({}) | {:.2} | {bake_ms:.0} |",
+                "| {set} | {name} | {} | {} | {:.2} | {:.2} | {:.2} ({}) | {:.2} | {bake_ms:.0} |",
+                texture.atlas.width(),
                 texels.index.len(),
                 atlas.mean_error,
                 atlas.psnr,
@@ -388,7 +447,7 @@ fn main() -> Result<()> {
                 let old = figures(&texels.old, &texels, side, None);
                 writeln!(
                     page,
-                    "| {set} | the most frontal photo alone (before) | {} | {:.2} | {:.2} | – | {:.2} | – |",
+                    "| {set} | the most frontal photo alone (before) | – | {} | {:.2} | {:.2} | – | {:.2} | – |",
                     texels.index.len(),
                     old.mean_error,
                     old.psnr,
@@ -410,7 +469,7 @@ fn main() -> Result<()> {
     }
     writeln!(
         page,
-        "\nBake times are the pipeline's `texture` stage (1024² atlas, 2 cores).\n\nThe default atlas from photos-8, turned (`turntable.png`; derived from the scan, CC BY 3.0 as above):\n\n![photos-8](photos-8-turntable.png)"
+        "\nBake times are the pipeline's `texture` stage (2 cores).\n\nThe default atlas from photos-8, turned (`turntable.png`; derived from the scan, CC BY 3.0 as above):\n\n![photos-8](photos-8-turntable.png)"
     )?;
     std::fs::write(out.join("texture.md"), page)?;
     eprintln!("wrote {}", out.join("texture.md").display());

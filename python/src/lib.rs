@@ -820,7 +820,11 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             "spacing" => s.spacing = number(&value)?,
             "depth_size" => s.depth_size = count(&value)?,
             "texture_size" => {
-                s.texture_size = u32::try_from(count(&value)?).map_err(|_| wrong("at most 8192"))?;
+                s.texture_size = if value.is_none() {
+                    None
+                } else {
+                    Some(u32::try_from(count(&value)?).map_err(|_| wrong("at most 8192"))?)
+                };
             }
             "min_photos" => s.min_photos = count(&value)?,
             _ => {

@@ -41,7 +41,10 @@ pub use refine::{
 };
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
-pub use texture::{FaceTexture, NO_PHOTO, TexelSource, TextureOptions, TexturePhoto, bake_texture};
+pub use texture::{
+    AUTOMATIC_COVERAGE, AUTOMATIC_MAX_SIDE, AUTOMATIC_MIN_SIDE, FaceTexture, NO_PHOTO, TexelSource,
+    TextureOptions, TexturePhoto, automatic_atlas_side, bake_texture,
+};
 
 /// How the reference grid is deformed to an estimated structure (see the module documentation).
 #[derive(Debug, Clone, Copy, PartialEq)]

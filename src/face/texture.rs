@@ -51,7 +51,7 @@ use rayon::prelude::*;
 
 use super::{ClippedMesh, FaceError, FaceSurface, Look, RefinedCamera};
 use crate::Real;
-use crate::geometry::edge_crossing;
+use crate::geometry::{edge_crossing, polygon_contains};
 
 /// The depth test's tolerance, canonical units, beyond the buffer's own resolution.
 pub const DEPTH_TOLERANCE: Real = 1.0;
@@ -67,8 +67,10 @@ const GRAZING: Real = 0.173_648_177_666_930_35;
 /// Options of [`bake_texture`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TextureOptions {
-    /// The atlas's side in texels (16 to 8192).
-    pub size: u32,
+    /// The atlas's side in texels (16 to 8192), or `None` to take it from the photos
+    /// ([`automatic_atlas_side`]: about one texel per pixel of the sharpest photo that sees
+    /// each part of the face).
+    pub size: Option<u32>,
     /// `p`, the power of the weights in the blend: 1 averages the photos by their weights,
     /// larger values let the best view of each texel dominate.
     pub sharpness: Real,
@@ -79,7 +81,7 @@ pub struct TextureOptions {
 }
 
 impl Default for TextureOptions {
-    /// A 1024² atlas, `p = 1` (each texel the weighted mean of the photos that see it),
+    /// An atlas sized to the photos ([`automatic_atlas_side`]), `p = 1` (each texel the weighted mean of the photos that see it),
     /// colours matched, mirror filling on.
     ///
     /// Measured by `tools/texture_eval` (`lps-head`'s given photo sets through the whole photo
@@ -101,10 +103,11 @@ impl Default for TextureOptions {
     /// weighted mean the weights were made for. Matching the photos' colours changed these
     /// figures by up to a level and a half (photos-8 14.9 unmatched against 16.4, photos-3
     /// 14.8 against 14.5): the renders share one exposure, so they cannot show what it is
-    /// for; the tests show it bringing a photo exposed at 60% back within 2%.
+    /// for; the tests show it bringing a photo exposed at 60% back within 2%. (These rows are
+    /// of a 1024² atlas; the automatic size is measured in [`automatic_atlas_side`].)
     fn default() -> Self {
         TextureOptions {
-            size: 1024,
+            size: None,
             sharpness: 1.0,
             match_colours: true,
             mirror: true,
@@ -238,6 +241,103 @@ impl FaceTexture {
             }
         })
     }
+}
+
+/// The smallest side [`automatic_atlas_side`] chooses, texels.
+pub const AUTOMATIC_MIN_SIDE: u32 = 256;
+/// The largest side [`automatic_atlas_side`] chooses, texels (a larger atlas can be asked
+/// for: each photo's weights take 4 bytes a texel while the atlas is baked).
+pub const AUTOMATIC_MAX_SIDE: u32 = 2048;
+
+/// The share of the face's texels that [`automatic_atlas_side`] gives at least a texel per
+/// pixel of the sharpest photo that sees them.
+pub const AUTOMATIC_COVERAGE: Real = 0.9;
+
+/// The atlas side that gives [`AUTOMATIC_COVERAGE`] of the face's texels at least one texel
+/// per pixel of the sharpest photo that sees them, rounded up to a multiple of 128 and held to
+/// [`AUTOMATIC_MIN_SIDE`]`..=`[`AUTOMATIC_MAX_SIDE`].
+///
+/// Over a 33 × 33 grid of the clip region's `(u, v)`, each point needs `max |∂π/∂u|,
+/// |∂π/∂v|` texels per unit of `u` and `v`: the pixel lengths of the surface's tangents in
+/// the photo that shows them longest, among the photos that see the point at less than 80°
+/// (`π` a photo's projection, its derivatives by central differences). Texels are uniform in
+/// `(u, v)`, so the grid's points stand for equal shares of the atlas; the side is the
+/// [`AUTOMATIC_COVERAGE`] quantile of their needs. The rest are where the surface turns away
+/// from the front (the cheeks' sides), which the parametrisation over the frontal plane gives
+/// few texels per millimetre; giving every one of them a texel per pixel takes 1,400–1,500
+/// texels on `lps-head`'s photos (median 440, 90%: 640–710).
+///
+/// More texels than the photos have pixels hold nothing the photos saw. Measured by
+/// `tools/texture_eval` on `lps-head` (each atlas sampled bilinearly at a 1024² atlas's
+/// texels, as a renderer samples it; mean error in sRGB levels / PSNR / seam step, and the
+/// bake's time on 2 cores; the rule gives 768 for both sets):
+///
+/// | side | photos-8 | photos-3 |
+/// |---|---|---|
+/// | 1024 (the former default) | 16.37 / 21.72 dB / 1.37, 736 ms | 14.52 / 22.45 dB / 1.25, 322 ms |
+/// | **768** | 16.36 / 21.72 dB / 1.34, 421 ms | 14.49 / 22.47 dB / 1.18, 183 ms |
+/// | 512 | 16.32 / 21.74 dB / 1.29, 187 ms | 14.46 / 22.50 dB / 1.17, 108 ms |
+/// | 256 | 16.24 / 21.79 dB / 1.28, 58 ms | 14.36 / 22.57 dB / 1.12, 37 ms |
+///
+/// The comparison cannot see detail finer than the reconstruction's registration to the scan
+/// (about a millimetre, three pixels), so it rewards blur a little; the rule keeps the photos'
+/// own resolution rather than the smallest atlas that scores as well.
+///
+/// # Errors
+/// [`FaceError::Kernel`] if the surface cannot be evaluated over its unit domain.
+pub fn automatic_atlas_side(face: &FaceSurface, photos: &[TexturePhoto<'_>]) -> Result<u32, FaceError> {
+    let cameras: Vec<RefinedCamera> = photos.iter().map(|p| p.camera).collect();
+    atlas_side(face.surface(), face.clip(), &cameras)
+}
+
+/// [`automatic_atlas_side`] of a surface over the unit square, clipped to `clip`.
+fn atlas_side(
+    surface: &crate::bspline::BSplineSurface,
+    clip: &[Point2<Real>],
+    cameras: &[RefinedCamera],
+) -> Result<u32, FaceError> {
+    const GRID: usize = 33;
+    // A step of the central differences, in (u, v): some hundredths of a canonical unit.
+    const STEP: Real = 1e-4;
+    let mut needs = Vec::with_capacity(GRID * GRID);
+    for r in 0..GRID {
+        for c in 0..GRID {
+            let (u, v) = (c as Real / (GRID - 1) as Real, r as Real / (GRID - 1) as Real);
+            if !polygon_contains(clip, Point2::new(u, v)) {
+                continue;
+            }
+            let d = surface.derivatives(u, v, 1)?;
+            let (point, tangents) = (Point3::from(d.get(0, 0)), [d.get(1, 0), d.get(0, 1)]);
+            let Some(normal) = tangents[0].cross(&tangents[1]).try_normalize(0.0) else {
+                continue;
+            };
+            let mut need: Real = 0.0;
+            for camera in cameras {
+                if !camera.look(&point, &normal).is_some_and(|l| l.cos >= GRAZING) {
+                    continue;
+                }
+                for t in tangents {
+                    let ends = (
+                        camera.pixel(&(point + t * STEP)),
+                        camera.pixel(&(point - t * STEP)),
+                    );
+                    if let (Some(a), Some(b)) = ends {
+                        need = need.max((a - b).norm() / (2.0 * STEP));
+                    }
+                }
+            }
+            if need > 0.0 {
+                needs.push(need);
+            }
+        }
+    }
+    if needs.is_empty() {
+        return Ok(AUTOMATIC_MIN_SIDE);
+    }
+    let k = ((needs.len() - 1) as Real * AUTOMATIC_COVERAGE).round() as usize;
+    let (_, &mut need, _) = needs.select_nth_unstable_by(k, Real::total_cmp);
+    let side = (need / 128.0).ceil() * 128.0;
+    Ok(side.clamp(Real::from(AUTOMATIC_MIN_SIDE), Real::from(AUTOMATIC_MAX_SIDE)) as u32)
 }
 
 /// sRGB (0–255) to linear light.
@@ -886,10 +986,10 @@ fn check_inputs(
     photos: &[TexturePhoto<'_>],
     options: &TextureOptions,
 ) -> Result<(), FaceError> {
-    if !(16..=8192).contains(&options.size) {
+    if let Some(size) = options.size.filter(|s| !(16..=8192).contains(s)) {
         return Err(FaceError::Option {
             name: "texture size",
-            value: options.size.to_string(),
+            value: size.to_string(),
             expected: "16 to 8192 texels",
         });
     }
@@ -1083,7 +1183,11 @@ pub fn bake_texture(
     options: &TextureOptions,
 ) -> Result<FaceTexture, FaceError> {
     check_inputs(face, photos, options)?;
-    let side = options.size as usize;
+    let size = match options.size {
+        Some(size) => size,
+        None => automatic_atlas_side(face, photos)?,
+    };
+    let side = size as usize;
     let (texels, nodes, gain_grid) = (
         Texels::new(side, face.clip()),
         Nodes::new(side),
@@ -1136,7 +1240,7 @@ pub fn bake_texture(
         .map(|s| matches!(s, TexelSource::Seen | TexelSource::Mirrored))
         .collect();
     push_pull(&mut colours, &known, side);
-    let mut atlas = RgbImage::new(options.size, options.size);
+    let mut atlas = RgbImage::new(size, size);
     atlas
         .par_chunks_mut(3)
         .zip(&colours)
@@ -1162,6 +1266,66 @@ mod tests {
     /// give every texel exactly what the camera gives its surface point; and a texel's pixel
     /// from the kept node pixels is its look's pixel to the last bit. The atlas's side (99)
     /// leaves a last node cell narrower than the others.
+    /// A flat parallelogram `F = o + u a + v b` seen by an orthographic camera of scale `s`
+    /// needs `s · max(|P R a|, |P R b|)` texels at every point: the side is that rounded up to
+    /// a multiple of 128, held to 256..=2048; a camera that sees it edge-on or from behind
+    /// asks for nothing.
+    #[test]
+    fn the_automatic_side_gives_a_texel_per_pixel_of_the_sharpest_camera() {
+        let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
+        let (origin, a, b) = (
+            Vector3::new(-30.0, -40.0, 5.0),
+            Vector3::new(60.0, 0.0, 6.0),
+            Vector3::new(3.0, 80.0, -4.0),
+        );
+        let corners = vec![
+            Point3::from(origin),
+            Point3::from(origin + b),
+            Point3::from(origin + a),
+            Point3::from(origin + a + b),
+        ];
+        let surface = BSplineSurface::new(knots.clone(), knots, 2, 2, corners).unwrap();
+        let clip = [
+            Point2::new(0.0, 0.0),
+            Point2::new(1.0, 0.0),
+            Point2::new(1.0, 1.0),
+            Point2::new(0.0, 1.0),
+        ];
+        let camera = |scale: Real, yaw: Real, pitch: Real| {
+            let pose = Pose::from_yaw_pitch_roll_degrees(yaw, pitch, 5.0, scale);
+            RefinedCamera::orthographic(&pose, Point2::new(30.0, -20.0), (800, 1000))
+        };
+        // Texels per unit of scale: the longer of the two tangents' images.
+        let per_scale = |yaw: Real, pitch: Real| {
+            let c = camera(1.0, yaw, pitch);
+            let lengths = [a, b].map(|t| (c.rotation * t).xy().norm());
+            lengths[0].max(lengths[1])
+        };
+        // Scales that need 3% under a multiple of 128: a side that left out the
+        // foreshortening (|a|, |b| = 60.3, 80.2) would round up past it.
+        for (yaw, pitch) in [(20.0, -10.0), (20.0, -50.0), (60.0, 0.0)] {
+            for side in [384, 640, 1024, 1536] {
+                let scale = 0.97 * Real::from(side) / per_scale(yaw, pitch);
+                let sharp = camera(scale, yaw, pitch);
+                assert_eq!(
+                    atlas_side(&surface, &clip, &[sharp]).unwrap(),
+                    side,
+                    "{yaw}, {pitch}"
+                );
+                // The sharper of two cameras decides.
+                let blunt = camera(scale / 2.0, -yaw, pitch);
+                assert_eq!(atlas_side(&surface, &clip, &[blunt, sharp]).unwrap(), side);
+            }
+        }
+        let side =
+            |scale: Real, yaw: Real| atlas_side(&surface, &clip, &[camera(scale, yaw, -10.0)]).unwrap();
+        assert_eq!(side(0.5, 20.0), AUTOMATIC_MIN_SIDE);
+        assert_eq!(side(100.0, 20.0), AUTOMATIC_MAX_SIDE);
+        // Seen from behind (yaw 180°) or edge-on (85°), the camera asks for nothing.
+        assert_eq!(side(12.0, 180.0), AUTOMATIC_MIN_SIDE);
+        assert_eq!(side(12.0, 85.0), AUTOMATIC_MIN_SIDE);
+    }
+
     #[test]
     fn texel_looks_interpolate_the_nodes_exactly_where_the_projection_is_affine() {
         let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();

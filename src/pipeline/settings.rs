@@ -31,8 +31,9 @@ pub struct Settings {
     pub spacing: f64,
     /// The depth map's larger side, pixels (16 to [`MAX_SIDE`]).
     pub depth_size: usize,
-    /// The texture atlas's side, texels (16 to 8192).
-    pub texture_size: u32,
+    /// The texture atlas's side, texels (16 to 8192), or `None` to take it from the photos
+    /// ([`crate::face::automatic_atlas_side`]).
+    pub texture_size: Option<u32>,
     /// The fewest usable photos (at least 1).
     pub min_photos: usize,
 }
@@ -50,7 +51,7 @@ impl Default for Settings {
             deformation: "local".into(),
             spacing: 1.0,
             depth_size: 512,
-            texture_size: 1024,
+            texture_size: None,
             min_photos: super::MIN_PHOTOS,
         }
     }
@@ -128,10 +129,10 @@ impl Settings {
         if self.min_photos == 0 {
             return Err(bad("min_photos", "0".into(), "must be at least 1"));
         }
-        if !(16..=8192).contains(&self.texture_size) {
+        if let Some(size) = self.texture_size.filter(|s| !(16..=8192).contains(s)) {
             return Err(bad(
                 "texture_size",
-                self.texture_size.to_string(),
+                size.to_string(),
                 "must be between 16 and 8192",
             ));
         }
@@ -221,7 +222,7 @@ mod tests {
             ),
             (
                 Settings {
-                    texture_size: 8,
+                    texture_size: Some(8),
                     ..Settings::default()
                 },
                 "texture_size 8: must be between 16 and 8192",

@@ -620,6 +620,10 @@ fn bad_paths_and_flags_fail_cleanly() {
             vec!["--texture-size 8: must be between 16 and 8192"],
         ),
         (
+            with_flag("--texture-size", "big"),
+            vec!["--texture-size big: expected auto or a whole number of texels (16 to 8192)"],
+        ),
+        (
             with_flag("--min-photos", "0"),
             vec!["--min-photos 0: must be at least 1"],
         ),

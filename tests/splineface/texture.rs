@@ -3,8 +3,8 @@
 use nalgebra::{Point3, Vector3};
 use splineface::Real;
 use splineface::face::{
-    FaceError, FaceSurface, FaceTexture, MeshOptions, RefinedCamera, TexelSource, TextureOptions,
-    TexturePhoto, bake_texture,
+    AUTOMATIC_MAX_SIDE, AUTOMATIC_MIN_SIDE, FaceError, FaceSurface, FaceTexture, MeshOptions, RefinedCamera,
+    TexelSource, TextureOptions, TexturePhoto, automatic_atlas_side, bake_texture,
 };
 use splineface::reference::ReferenceFace;
 use splineface::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
@@ -121,7 +121,7 @@ fn the_atlas_gives_back_the_colours_the_photos_saw() {
     let face = mean_face();
     let shots = photos(&face, &[(-35.0, 1.0), (0.0, 1.0), (35.0, 1.0)]);
     let options = TextureOptions {
-        size: 256,
+        size: Some(256),
         ..TextureOptions::default()
     };
     let texture = bake(&face, &shots, &options);
@@ -149,7 +149,7 @@ fn a_photo_takes_nothing_it_does_not_see_and_the_mirror_fills_the_rest() {
     let face = mean_face();
     let shots = photos(&face, &[(65.0, 1.0)]);
     let options = TextureOptions {
-        size: 256,
+        size: Some(256),
         ..TextureOptions::default()
     };
     let texture = bake(&face, &shots, &options);
@@ -197,7 +197,7 @@ fn photos_of_another_exposure_are_matched() {
     // The middle photo is exposed at 60%: a gain of 1/0.6 in linear light brings it back.
     let shots = photos(&face, &[(-30.0, 1.0), (0.0, 0.6), (30.0, 1.0)]);
     let options = TextureOptions {
-        size: 256,
+        size: Some(256),
         ..TextureOptions::default()
     };
     let texture = bake(&face, &shots, &options);
@@ -289,7 +289,7 @@ fn photos_of_other_sizes_register_and_a_grey_photo_gives_no_grey() {
         image::DynamicImage::ImageLuma8(image::DynamicImage::ImageRgb8(shots[2].0.clone()).to_luma8())
             .to_rgb8();
     let options = TextureOptions {
-        size: 256,
+        size: Some(256),
         ..TextureOptions::default()
     };
     let texture = bake(&face, &shots, &options);
@@ -317,7 +317,7 @@ fn bad_texture_options_are_refused() {
     };
     for options in [
         TextureOptions {
-            size: 8,
+            size: Some(8),
             ..TextureOptions::default()
         },
         TextureOptions {
@@ -357,7 +357,7 @@ fn the_atlas_is_inside_the_clip_region_exactly_where_the_polygon_test_says() {
         &face,
         &shots,
         &TextureOptions {
-            size: 200,
+            size: Some(200),
             ..TextureOptions::default()
         },
     );
@@ -367,4 +367,39 @@ fn the_atlas_is_inside_the_clip_region_exactly_where_the_polygon_test_says() {
         let inside = splineface::geometry::polygon_contains(face.clip(), p);
         assert_eq!(*source != TexelSource::Outside, inside, "texel ({x}, {y})");
     }
+}
+
+/// The default atlas's side follows the photos: photos at twice the resolution (every camera's
+/// image scaled by 2) ask for twice the texels, to within the rounding to 128; the bake with the
+/// default options makes an atlas of that side.
+#[test]
+fn the_default_atlas_follows_the_photos_resolution() {
+    let face = mean_face();
+    let shots = photos(&face, &[(-35.0, 1.0), (0.0, 1.0), (35.0, 1.0)]);
+    let side_of = |factor: Real| {
+        let photos: Vec<TexturePhoto> = shots
+            .iter()
+            .map(|(image, camera)| TexturePhoto {
+                image,
+                camera: RefinedCamera {
+                    scale: camera.scale * factor,
+                    offset: camera.offset * factor,
+                    centre: camera.centre * factor,
+                    ..*camera
+                },
+                surface: None,
+            })
+            .collect();
+        automatic_atlas_side(&face, &photos).unwrap()
+    };
+    let (one, two) = (side_of(1.0), side_of(2.0));
+    assert!(one % 128 == 0 && two % 128 == 0, "{one}, {two}");
+    assert!(
+        (Real::from(two) - 2.0 * Real::from(one)).abs() <= 256.0 && two > one,
+        "{one} at the photos' size, {two} at twice it"
+    );
+    assert!((AUTOMATIC_MIN_SIDE..AUTOMATIC_MAX_SIDE).contains(&two), "{two}");
+    let texture = bake(&face, &shots, &TextureOptions::default());
+    assert_eq!(texture.atlas.width(), one);
+    assert_eq!(texture.sources.len(), (one * one) as usize);
 }

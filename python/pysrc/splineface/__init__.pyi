@@ -40,7 +40,7 @@ class _Settings(TypedDict, total=False):
     deformation: str  # "local" ["local"] or "affine", for shape="deformed"
     spacing: float  # mesh vertex spacing, canonical units, 0.1 to 20 [1]
     depth_size: int  # the depth map's larger side, pixels [512]
-    texture_size: int  # the texture atlas's side, 16 to 8192 [1024]
+    texture_size: Optional[int]  # the texture atlas's side, 16 to 8192, or None: from the photos [None]
     min_photos: int  # the fewest usable photos [2]
 
 class SplinefaceError(Exception):

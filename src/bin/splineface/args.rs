@@ -329,9 +329,10 @@ pub(crate) struct OutputArgs {
     /// The depth map's larger side, pixels.
     #[arg(long, default_value_t = 512)]
     pub(crate) depth_size: usize,
-    /// The texture atlas's side (`face.png`), texels: 16 to 8192.
-    #[arg(long, default_value_t = 1024)]
-    pub(crate) texture_size: u32,
+    /// The texture atlas's side (`face.png`), texels: 16 to 8192, or `auto` (about one texel
+    /// per pixel of the sharpest photo over the face, 256 to 2048).
+    #[arg(long, default_value = "auto")]
+    pub(crate) texture_size: String,
     /// Stop with an error when fewer photos than this are usable (one photo measured worse
     /// than the unchanged mean face; see tools/results/evaluation.md).
     #[arg(long, default_value_t = splineface::pipeline::MIN_PHOTOS)]
@@ -351,6 +352,14 @@ impl OutputArgs {
 
     /// The pipeline's options, checked by the library ([`splineface::pipeline::Settings`]).
     pub(crate) fn options(&self) -> Result<PipelineOptions> {
+        let texture_size = match self.texture_size.as_str() {
+            "auto" => None,
+            text => Some(text.parse::<u32>().map_err(|_| {
+                anyhow::anyhow!(
+                    "--texture-size {text}: expected auto or a whole number of texels (16 to 8192)"
+                )
+            })?),
+        };
         let settings = splineface::pipeline::Settings {
             units: self.units.clone(),
             eye_distance: self.eye_distance,
@@ -362,7 +371,7 @@ impl OutputArgs {
             deformation: self.deformation.clone(),
             spacing: self.spacing,
             depth_size: self.depth_size,
-            texture_size: self.texture_size,
+            texture_size,
             min_photos: self.min_photos,
         };
         settings
