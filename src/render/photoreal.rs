@@ -264,6 +264,31 @@ impl ColourMap {
     }
 }
 
+/// The shadow map's side, texels: twice the pixels the mesh spans in the (supersampled) image,
+/// its longer side, rounded up to a multiple of 64 and held to 256..=[`SHADOW_MAP_MAX`], so
+/// that a small view (the turntable's) does not pay for a map finer than it can show. The
+/// evaluation's photos span more than 512 pixels and keep the largest map.
+fn shadow_side(pixels: &[[Real; 2]], keys: &[Real]) -> usize {
+    let (mut lo, mut hi) = ([Real::INFINITY; 2], [Real::NEG_INFINITY; 2]);
+    for (p, k) in pixels.iter().zip(keys) {
+        if k.is_finite() {
+            for a in 0..2 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+    }
+    let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    if !span.is_finite() {
+        return SHADOW_MAP_MAX;
+    }
+    let side = ((2.0 * span / 64.0).ceil() * 64.0).clamp(256.0, SHADOW_MAP_MAX as Real);
+    side as usize
+}
+
+/// The largest shadow map's side, texels.
+const SHADOW_MAP_MAX: usize = 1024;
+
 /// The shadow map: the mesh's heights toward the light over a raster of the light's plane.
 struct ShadowMap {
     turn: UnitQuaternion<Real>,
@@ -274,12 +299,11 @@ struct ShadowMap {
 }
 
 impl ShadowMap {
-    fn new(mesh: &TriangleMesh, towards_light: &Vector3<Real>, softness: Real) -> Self {
+    fn new(mesh: &TriangleMesh, towards_light: &Vector3<Real>, softness: Real, side: usize) -> Self {
         let turn = UnitQuaternion::rotation_between(towards_light, &Vector3::z())
             .unwrap_or_else(|| UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI));
         let turned: Vec<Point3<Real>> = mesh.positions().iter().map(|p| turn * p).collect();
         let (lo, hi) = crate::geometry::bounding_box(&turned).expect("a mesh has vertices");
-        let side = 1024usize;
         let spacing = ((hi.x - lo.x).max(hi.y - lo.y) / (side as Real - 2.0)).max(1e-9);
         let raster = crate::mesh::Raster {
             origin: Point2::new(lo.x - spacing, lo.y - spacing),
@@ -435,7 +459,12 @@ pub fn render_photo(
     // The light toward the world: viewing frame → OpenCV camera frame → world.
     let viewing = lighting.direction.normalize();
     let towards_light = big.rotation.inverse() * Vector3::new(viewing.x, -viewing.y, -viewing.z);
-    let shadows = ShadowMap::new(mesh, &towards_light, lighting.shadow_softness);
+    let shadows = ShadowMap::new(
+        mesh,
+        &towards_light,
+        lighting.shadow_softness,
+        shadow_side(&pixels, &keys),
+    );
     let eye = big.position();
     let background = |row: usize| -> [Real; 3] {
         let t = row as Real / (height.max(2) - 1) as Real;
