@@ -26,6 +26,7 @@
 //! * `structure_ssim` and `depth_correlation` (with both structures): the multi-substructure SSIM
 //!   of the aligned structures' edge lengths and the correlation of their 40 depths.
 
+pub use crate::geometry::LengthUnit;
 use std::path::PathBuf;
 
 use nalgebra::{
@@ -89,39 +90,6 @@ impl CompareOptions {
             ));
         }
         Ok(())
-    }
-}
-
-/// A length unit of a mesh file's coordinates.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum LengthUnit {
-    /// Millimetres.
-    #[default]
-    Millimetre,
-    /// Centimetres.
-    Centimetre,
-    /// Metres.
-    Metre,
-}
-
-impl LengthUnit {
-    /// `mm`, `cm` or `m` (any case).
-    pub fn parse(text: &str) -> Option<Self> {
-        match text.to_ascii_lowercase().as_str() {
-            "mm" => Some(LengthUnit::Millimetre),
-            "cm" => Some(LengthUnit::Centimetre),
-            "m" => Some(LengthUnit::Metre),
-            _ => None,
-        }
-    }
-
-    /// Millimetres per unit.
-    pub fn millimetres(self) -> Real {
-        match self {
-            LengthUnit::Millimetre => 1.0,
-            LengthUnit::Centimetre => 10.0,
-            LengthUnit::Metre => 1000.0,
-        }
     }
 }
 

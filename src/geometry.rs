@@ -118,3 +118,54 @@ pub fn affine(linear: &Matrix2<Real>, shift: &Vector2<Real>) -> Matrix2x3<Real> 
     m.set_column(2, shift);
     m
 }
+
+/// A length unit of a file's coordinates (a mesh's, a surface's).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LengthUnit {
+    /// Millimetres.
+    #[default]
+    Millimetre,
+    /// Centimetres.
+    Centimetre,
+    /// Metres.
+    Metre,
+}
+
+impl LengthUnit {
+    /// `mm`, `cm` or `m` (any case).
+    pub fn parse(text: &str) -> Option<Self> {
+        match text.to_ascii_lowercase().as_str() {
+            "mm" => Some(LengthUnit::Millimetre),
+            "cm" => Some(LengthUnit::Centimetre),
+            "m" => Some(LengthUnit::Metre),
+            _ => None,
+        }
+    }
+
+    /// `mm`, `cm` or `m`.
+    pub fn symbol(self) -> &'static str {
+        match self {
+            LengthUnit::Millimetre => "mm",
+            LengthUnit::Centimetre => "cm",
+            LengthUnit::Metre => "m",
+        }
+    }
+
+    /// The unit's name in the plural: `millimetres`, `centimetres` or `metres`.
+    pub fn plural(self) -> &'static str {
+        match self {
+            LengthUnit::Millimetre => "millimetres",
+            LengthUnit::Centimetre => "centimetres",
+            LengthUnit::Metre => "metres",
+        }
+    }
+
+    /// Millimetres per unit.
+    pub fn millimetres(self) -> Real {
+        match self {
+            LengthUnit::Millimetre => 1.0,
+            LengthUnit::Centimetre => 10.0,
+            LengthUnit::Metre => 1000.0,
+        }
+    }
+}

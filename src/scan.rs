@@ -34,6 +34,7 @@ use std::path::{Path, PathBuf};
 
 use crate::Real;
 use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit};
+use crate::geometry::LengthUnit;
 
 /// Options of [`fit_scan`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -891,7 +892,8 @@ impl ScanFit {
     /// Every file of a fit written to `out` (the surface, in `out`'s format), beside it
     /// [`residual_paths`] (the report, and a heatmap of each cell's largest residual over
     /// `(u, v)`, scaled to the tolerance or else to the largest residual), and the mesh of
-    /// [`ScanFit::mesh`] at `mesh` (`.obj` or `.ply`) when asked.
+    /// [`ScanFit::mesh`] at `mesh` (`.obj` or `.ply`) when asked. A STEP file declares its
+    /// numbers (the scan's, unscaled) to be in `unit`.
     ///
     /// # Errors
     /// [`ScanError::Option`] for an output whose extension names no format;
@@ -903,6 +905,7 @@ impl ScanFit {
         out: &Path,
         mesh: Option<&Path>,
         report: &str,
+        unit: LengthUnit,
     ) -> Result<Vec<(PathBuf, Vec<u8>)>, ScanError> {
         let bad = |name: &'static str, path: &Path, expected: &'static str| ScanError::Option {
             name,
@@ -919,8 +922,11 @@ impl ScanFit {
                 &self.surface,
                 &crate::bspline::StepOptions {
                     name: &name,
-                    description: "a B-spline surface fitted to a scan by splineface fit-surface, in the scan's units",
-                    millimetres: false,
+                    description: &format!(
+                        "a B-spline surface fitted to a scan by splineface fit-surface, in {}",
+                        unit.plural()
+                    ),
+                    unit,
                     trim: &self.footprint(footprint_side(self.params.len())),
                 },
             )

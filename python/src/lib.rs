@@ -387,9 +387,19 @@ impl BSplineSurfaceHandle {
 
     /// The surface as STEP AP214 text (`splineface::bspline::encode_step`): the exact spline,
     /// whole, or trimmed to `trim`, a closed polygon in `(u, v)` (float64 `(m, 2)`, `m ≥ 3`),
-    /// as one face bounded by the polygon and its exact image on the surface.
-    #[pyo3(signature = (name = "surface", description = "", trim = None))]
-    fn to_step(&self, name: &str, description: &str, trim: Option<&Bound<'_, PyAny>>) -> PyResult<String> {
+    /// as one face bounded by the polygon and its exact image on the surface. `units` (`"mm"`,
+    /// `"cm"` or `"m"`) is the length unit the file declares for the coordinates as they are.
+    #[pyo3(signature = (name = "surface", description = "", trim = None, units = "mm"))]
+    fn to_step(
+        &self,
+        name: &str,
+        description: &str,
+        trim: Option<&Bound<'_, PyAny>>,
+        units: &str,
+    ) -> PyResult<String> {
+        let unit = splineface::geometry::LengthUnit::parse(units).ok_or_else(|| {
+            PyValueError::new_err(format!("units={units:?}: expected \"mm\", \"cm\" or \"m\""))
+        })?;
         let trim: Vec<nalgebra::Point2<f64>> = match trim {
             Some(t) => params_of(t, "trim")?
                 .into_iter()
@@ -402,7 +412,7 @@ impl BSplineSurfaceHandle {
             &splineface::bspline::StepOptions {
                 name,
                 description,
-                millimetres: false,
+                unit,
                 trim: &trim,
             },
         )

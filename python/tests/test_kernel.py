@@ -200,3 +200,9 @@ def test_step_text_is_the_whole_surface_or_a_trimmed_face():
         surface.to_step(trim=triangle[:2])
     with pytest.raises(ValueError, match="trim"):
         surface.to_step(trim=triangle + 1.0)
+    assert "SI_UNIT(.MILLI.,.METRE.)" in whole
+    metres = surface.to_step(name="patch", units="m")
+    assert "SI_UNIT($,.METRE.)" in metres
+    assert metres.replace("SI_UNIT($,.METRE.)", "") == whole.replace("SI_UNIT(.MILLI.,.METRE.)", "")
+    with pytest.raises(ValueError, match="units"):
+        surface.to_step(units="furlong")

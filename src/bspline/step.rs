@@ -7,6 +7,7 @@ use nalgebra::{Point2, Point3};
 
 use super::{BSplineCurve, BSplineError, BSplineSurface, KnotVector};
 use crate::Real;
+use crate::geometry::LengthUnit;
 
 /// What goes into a STEP file besides the surface.
 #[derive(Debug, Clone, Default)]
@@ -15,10 +16,9 @@ pub struct StepOptions<'a> {
     pub name: &'a str,
     /// A line of description (units, origin).
     pub description: &'a str,
-    /// The declared length unit: `true` for millimetres, `false` for metres (the SI unit with
-    /// no prefix; the numbers are written as they are either way, and the description says
-    /// what they are).
-    pub millimetres: bool,
+    /// The length unit the file declares for its numbers (millimetres by default; the numbers
+    /// are written as they are, so this says what they already are).
+    pub unit: LengthUnit,
     /// A simple closed polygon in the surface's `(u, v)` domain to trim it to (the last
     /// vertex may repeat the first or not; either orientation), or empty for the whole
     /// parameter rectangle.
@@ -123,7 +123,11 @@ pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Resul
         "PRODUCT_DEFINITION('design','',#{formation},#{definition_context})"
     ));
     let shape = w.add(format!("PRODUCT_DEFINITION_SHAPE('','',#{definition})"));
-    let prefix = if options.millimetres { ".MILLI." } else { "$" };
+    let prefix = match options.unit {
+        LengthUnit::Millimetre => ".MILLI.",
+        LengthUnit::Centimetre => ".CENTI.",
+        LengthUnit::Metre => "$",
+    };
     let length = w.add(format!("(LENGTH_UNIT()NAMED_UNIT(*)SI_UNIT({prefix},.METRE.))"));
     let angle = w.add("(NAMED_UNIT(*)PLANE_ANGLE_UNIT()SI_UNIT($,.RADIAN.))".into());
     let solid = w.add("(NAMED_UNIT(*)SI_UNIT($,.STERADIAN.)SOLID_ANGLE_UNIT())".into());

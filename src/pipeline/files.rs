@@ -17,6 +17,7 @@ use super::{PipelineError, Reconstruction, encode_error};
 use crate::Real;
 use crate::bspline::{StepOptions, encode_step};
 use crate::face::Units;
+use crate::geometry::LengthUnit;
 use crate::io::encode_png;
 use crate::mesh::{PlyEncoding, PngTexture, TriangleMesh, encode_glb, encode_ply};
 use crate::render::{encode_depth_exr, encode_depth_png, shaded_png};
@@ -393,7 +394,10 @@ impl Reconstruction {
             &StepOptions {
                 name: "face",
                 description: &description,
-                millimetres: matches!(units, Units::Millimetres { .. }),
+                // Canonical units (50 between the eye centres, about 1.26 mm each) are
+                // declared as millimetres: a CAD tool then opens the face near its natural size
+                // rather than a thousand times too large; the description says what they are.
+                unit: LengthUnit::Millimetre,
                 trim: self.face.clip(),
             },
         )

@@ -8,6 +8,7 @@ use splineface::Real;
 use splineface::bspline::{StepOptions, encode_step};
 use splineface::depth::{PhotoFit, Pose};
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
+use splineface::geometry::LengthUnit;
 use splineface::io::encode_png;
 use splineface::mesh::{PngTexture, write_glb, write_obj};
 use splineface::mesh::{read_mesh, write_mesh};
@@ -182,6 +183,42 @@ fn ply_and_obj_carry_normals() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The file declares the unit it is asked to (millimetres unless told), as STEP's SI unit of
+/// length with its prefix, and the numbers are the same whatever it declares.
+#[test]
+fn step_files_declare_their_unit() {
+    let face = face();
+    let text = |unit: Option<LengthUnit>| {
+        let base = StepOptions {
+            name: "face",
+            description: "canonical units",
+            ..StepOptions::default()
+        };
+        let options = match unit {
+            Some(unit) => StepOptions { unit, ..base },
+            None => base,
+        };
+        encode_step(face.surface(), &options).unwrap()
+    };
+    let declared = |text: &str| {
+        let at = text.find("SI_UNIT(").unwrap();
+        text[at..at + text[at..].find(')').unwrap() + 1].to_owned()
+    };
+    assert_eq!(declared(&text(None)), "SI_UNIT(.MILLI.,.METRE.)");
+    for (unit, expected) in [
+        (LengthUnit::Millimetre, "SI_UNIT(.MILLI.,.METRE.)"),
+        (LengthUnit::Centimetre, "SI_UNIT(.CENTI.,.METRE.)"),
+        (LengthUnit::Metre, "SI_UNIT($,.METRE.)"),
+    ] {
+        let file = text(Some(unit));
+        assert_eq!(declared(&file), expected);
+        assert_eq!(
+            file.replace(expected, ""),
+            text(None).replace("SI_UNIT(.MILLI.,.METRE.)", "")
+        );
+    }
+}
+
 fn step_file(trim: bool) -> (String, FaceSurface) {
     let face = face();
     let text = encode_step(
@@ -189,7 +226,7 @@ fn step_file(trim: bool) -> (String, FaceSurface) {
         &StepOptions {
             name: "face",
             description: "canonical units",
-            millimetres: false,
+            unit: LengthUnit::Metre,
             trim: if trim { face.clip() } else { &[] },
         },
     )

@@ -330,6 +330,8 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
     // Trimmed to the disc's footprint: one face, bounded in space and in (u, v).
     assert_eq!(step.matches("=ADVANCED_FACE(").count(), 1);
     assert_eq!(step.matches("=B_SPLINE_CURVE_WITH_KNOTS(").count(), 2);
+    // The scan's numbers are declared millimetres unless told otherwise.
+    assert!(step.contains("SI_UNIT(.MILLI.,.METRE.)") && step.contains("in millimetres"));
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("cap.residuals.json")).unwrap()).unwrap();
     assert_eq!(report["points"], 20_000);
@@ -385,6 +387,11 @@ fn the_command_writes_the_surface_and_its_residuals_or_nothing() {
             &sphere,
             vec!["--out", "x.json", "--normal", "1,2"],
             "--normal 1,2: expected X,Y,Z",
+        ),
+        (
+            &sphere,
+            vec!["--out", "x.step", "--units", "inch"],
+            "--units `inch`: expected mm, cm or m",
         ),
         (
             &sphere,

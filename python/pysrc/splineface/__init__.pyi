@@ -81,8 +81,11 @@ class BSplineSurface:
         """Unit normals (n, 3), NaN where the surface is degenerate."""
     def closest(self, points: _Floats) -> dict[str, npt.NDArray[np.float64]]:
         """The closest points to points (n, 3): params (n, 2), points (n, 3), distances (n,)."""
-    def to_step(self, name: str = "surface", description: str = "", trim: _Floats | None = None) -> str:
-        """STEP AP214 text of the exact surface, whole or trimmed to a (u, v) polygon (m, 2)."""
+    def to_step(
+        self, name: str = "surface", description: str = "", trim: _Floats | None = None, units: str = "mm"
+    ) -> str:
+        """STEP AP214 text of the exact surface, whole or trimmed to a (u, v) polygon (m, 2);
+        the file declares its coordinates to be in `units` ("mm", "cm" or "m")."""
     @property
     def control_points(self) -> npt.NDArray[np.float64]: ...
     @property

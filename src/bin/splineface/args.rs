@@ -410,4 +410,8 @@ pub(crate) struct FitSurfaceArgs {
     /// Also write the surface as a mesh over the scan's part of the plane: `.obj` or `.ply`.
     #[arg(long)]
     pub(crate) mesh: Option<PathBuf>,
+    /// The scan's length unit, which a `.step` surface declares: `mm`, `cm` or `m` (the
+    /// numbers are kept as they are).
+    #[arg(long, default_value = "mm")]
+    pub(crate) units: String,
 }

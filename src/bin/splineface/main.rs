@@ -73,6 +73,7 @@ fn fit_surface(a: &FitSurfaceArgs) -> Result<()> {
         normal,
     };
     options.validate().map_err(|e| anyhow::anyhow!("--{e}"))?;
+    let unit = length_unit(&a.units, "--units")?;
     if SurfaceFormat::from_path(&a.out).is_none() {
         bail!("{}: the surface must be .json or .step", a.out.display());
     }
@@ -109,7 +110,7 @@ fn fit_surface(a: &FitSurfaceArgs) -> Result<()> {
     let fit = fit_scan(&points, &options).map_err(|e| anyhow::anyhow!("{}: {e}", a.scan.display()))?;
     let seconds = start.elapsed().as_secs_f64();
     let report = fit.report_json(&a.scan.display().to_string(), &options, seconds);
-    let files = fit.files(&a.out, a.mesh.as_deref(), &report)?;
+    let files = fit.files(&a.out, a.mesh.as_deref(), &report, unit)?;
     write_files(&files)?;
     let s = &fit.surface;
     println!("{}", a.out.display());
