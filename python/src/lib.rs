@@ -167,6 +167,19 @@ fn library_error(error: splineface::Error) -> PyErr {
 struct BSplineSurfaceHandle {
     surface: BSplineSurface,
     report: Option<splineface::bspline::FitReport>,
+    /// The closest-point index, built by the first `closest` and kept (the surface never
+    /// changes: the class is frozen).
+    index: std::sync::OnceLock<splineface::bspline::ClosestPoints<'static>>,
+}
+
+impl BSplineSurfaceHandle {
+    fn wrap(surface: BSplineSurface, report: Option<splineface::bspline::FitReport>) -> Self {
+        BSplineSurfaceHandle {
+            surface,
+            report,
+            index: std::sync::OnceLock::new(),
+        }
+    }
 }
 
 fn knots_or_uniform(
@@ -216,10 +229,7 @@ impl BSplineSurfaceHandle {
             .map(|c| Point3::new(c[0], c[1], c[2]))
             .collect();
         let surface = BSplineSurface::new(knots_u, knots_v, rows, cols, points).map_err(kernel_error)?;
-        Ok(BSplineSurfaceHandle {
-            surface,
-            report: None,
-        })
+        Ok(BSplineSurfaceHandle::wrap(surface, None))
     }
 
     /// Least-squares fit of a `shape = (rows, cols)` control grid to `points` (float64
@@ -279,10 +289,7 @@ impl BSplineSurfaceHandle {
             fit.fit(&params, &points)
         });
         let fitted = fitted.map_err(kernel_error)?;
-        Ok(BSplineSurfaceHandle {
-            surface: fitted.surface,
-            report: Some(fitted.report),
-        })
+        Ok(BSplineSurfaceHandle::wrap(fitted.surface, Some(fitted.report)))
     }
 
     /// The surface at `params` (float64 `(n, 2)`): float64 `(n, 3)`.
@@ -358,7 +365,8 @@ impl BSplineSurfaceHandle {
 
     /// The closest points of the surface to `points` (float64 `(n, 3)`), in parallel: a dict
     /// of `params` float64 `(n, 2)`, `points` `(n, 3)` and `distances` `(n,)` (Newton from
-    /// the nearest of a sampling, checked against every knot span that comes nearer).
+    /// the nearest of a sampling, checked against every knot span that comes nearer). The
+    /// index it searches is built by the first call (a few milliseconds) and kept.
     fn closest<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyDict>> {
         let (values, _) = floats(points, "points", &[None, Some(3)])?;
         let queries: Vec<Point3<f64>> = values
@@ -366,7 +374,11 @@ impl BSplineSurfaceHandle {
             .map(|c| Point3::new(c[0], c[1], c[2]))
             .collect();
         let found = py
-            .detach(|| splineface::bspline::ClosestPoints::new(&self.surface).closest_many(&queries))
+            .detach(|| {
+                self.index
+                    .get_or_init(|| splineface::bspline::ClosestPoints::owning(self.surface.clone()))
+                    .closest_many(&queries)
+            })
             .map_err(kernel_error)?;
         let n = found.len();
         let out = PyDict::new(py);
@@ -491,10 +503,7 @@ impl BSplineSurfaceHandle {
     fn from_json(text: &str) -> PyResult<Self> {
         let surface = BSplineSurface::from_json(text)
             .map_err(|e| PyValueError::new_err(format!("not a splineface surface: {e}")))?;
-        Ok(BSplineSurfaceHandle {
-            surface,
-            report: None,
-        })
+        Ok(BSplineSurfaceHandle::wrap(surface, None))
     }
 
     fn __repr__(&self) -> String {

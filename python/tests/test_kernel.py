@@ -184,6 +184,12 @@ def test_closest_points_on_a_curved_surface_beat_a_dense_search_and_are_stationa
         scale = np.linalg.norm(residual) + 1e-300
         assert abs(du @ residual) <= 1e-8 * scale * np.linalg.norm(du)
         assert abs(dv @ residual) <= 1e-8 * scale * np.linalg.norm(dv)
+    # The index the first call built answers the next calls, one point at a time too.
+    again = surface.closest(queries)
+    for key in ("params", "points", "distances"):
+        np.testing.assert_array_equal(again[key], found[key])
+    one = surface.closest(queries[7:8])
+    np.testing.assert_array_equal(one["params"], found["params"][7:8])
 
 
 def test_step_text_is_the_whole_surface_or_a_trimmed_face():

@@ -30,6 +30,8 @@
 //! no allocation per query. What remains, in the profile's order: the derivatives (a third),
 //! the k-d tree (a fifth), the span boxes' check (a sixth).
 
+use std::borrow::Cow;
+
 use nalgebra::{Point3, Vector3};
 
 use super::basis::SpanPolynomials;
@@ -459,7 +461,7 @@ struct Scratch {
 /// ```
 #[derive(Debug, Clone)]
 pub struct ClosestPoints<'a> {
-    surface: &'a BSplineSurface,
+    surface: Cow<'a, BSplineSurface>,
     /// The samples' parameters along `u` and `v` (the samples are their grid, row-major).
     us: Vec<Real>,
     vs: Vec<Real>,
@@ -496,6 +498,33 @@ fn sample_parameters(knots: &super::KnotVector) -> Vec<Real> {
 impl<'a> ClosestPoints<'a> {
     /// Samples `surface` and builds the tree of its samples.
     pub fn new(surface: &'a BSplineSurface) -> Self {
+        Self::build(Cow::Borrowed(surface))
+    }
+
+    /// As [`ClosestPoints::new`], owning its surface: an index that can be kept where a
+    /// borrow cannot (a cache beside the surface, a handle in another language).
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, ClosestPoints, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0)?;
+    /// let grid = vec![
+    ///     Point3::new(0.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0),
+    ///     Point3::new(1.0, 0.0, 0.0), Point3::new(1.0, 1.0, 0.0),
+    /// ];
+    /// let index: ClosestPoints<'static> =
+    ///     ClosestPoints::owning(BSplineSurface::new(knots.clone(), knots, 2, 2, grid)?);
+    /// let found = index.closest(&Point3::new(0.25, 0.5, 2.0))?;
+    /// assert!((found.u - 0.25).abs() < 1e-12 && (found.v - 0.5).abs() < 1e-12);
+    /// assert!((found.distance - 2.0).abs() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn owning(surface: BSplineSurface) -> ClosestPoints<'static> {
+        ClosestPoints::build(Cow::Owned(surface))
+    }
+
+    fn build(surface: Cow<'a, BSplineSurface>) -> Self {
         let (us, vs) = (
             sample_parameters(surface.knots_u()),
             sample_parameters(surface.knots_v()),
@@ -521,22 +550,24 @@ impl<'a> ClosestPoints<'a> {
             .collect::<Vec<_>>();
         let boxes = BoxTree::new(&boxes);
         let spans_v = (vs.len() - 1) / SAMPLES_PER_SPAN;
+        let (creases_u, creases_v) = (creases(surface.knots_u()), creases(surface.knots_v()));
+        let basis = [
+            SpanPolynomials::new(surface.knots_u()),
+            SpanPolynomials::new(surface.knots_v()),
+        ];
         ClosestPoints {
             surface,
             boxes,
             spans_v,
-            creases_u: creases(surface.knots_u()),
-            creases_v: creases(surface.knots_v()),
+            creases_u,
+            creases_v,
             us,
             vs,
             tree: KdTree::new(points),
             // A cell bulges by little more than its diagonal's tenth for the spans sampled.
             reach: 1.1 * reach,
             tolerance: 1e-12 * size,
-            basis: [
-                SpanPolynomials::new(surface.knots_u()),
-                SpanPolynomials::new(surface.knots_v()),
-            ],
+            basis,
         }
     }
 
@@ -566,7 +597,7 @@ impl<'a> ClosestPoints<'a> {
 
     /// The piece that holds `(u, v)`.
     fn piece(&self, u: Real, v: Real) -> Piece {
-        let s = self.surface;
+        let s: &BSplineSurface = &self.surface;
         Piece {
             u: piece_of(&self.creases_u, s.domain_u(), u),
             v: piece_of(&self.creases_v, s.domain_v(), v),
@@ -664,7 +695,7 @@ impl<'a> ClosestPoints<'a> {
 
     /// Damped Newton from `start` within `piece`, whose edges act as the domain's.
     fn newton(&self, query: &Point3<Real>, start: [Real; 2], piece: &Piece) -> ClosestPoint {
-        let s = self.surface;
+        let s: &BSplineSurface = &self.surface;
         let ((u0, u1), (v0, v1)) = (piece.u, piece.v);
         let [mut u, mut v] = start;
         let mut d = second_order(s, [&self.basis[0], &self.basis[1]], u, v, piece);
