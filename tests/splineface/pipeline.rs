@@ -239,6 +239,18 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     let (document, _, images) = gltf::import(out.join("face.glb")).unwrap();
     assert_eq!(document.meshes().count(), 1);
     assert_eq!(images.len(), 1);
+    // The atlas's side is the photos' (a multiple of 128, 256 to 2048), as the summary and
+    // report.json say.
+    let side = images[0].width;
+    assert!(side % 128 == 0 && (256..=2048).contains(&side), "{side}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["texture"]["size"], side);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        stdout.contains(&format!(", textured ({side} × {side} atlas)")),
+        "{stdout}"
+    );
 
     // Points only, in canonical units.
     let out = dir.join("points-only");

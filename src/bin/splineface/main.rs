@@ -560,10 +560,9 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
         "  mesh       {} vertices, {} triangles{}",
         result.mesh.mesh.positions().len(),
         result.mesh.mesh.triangles().len(),
-        if result.texture.is_some() {
-            ", textured"
-        } else {
-            ""
+        match &result.texture {
+            Some(texture) => format!(", textured ({side} × {side} atlas)", side = texture.atlas.width()),
+            None => String::new(),
         }
     );
     println!("  files      {}", files.len());
