@@ -1280,30 +1280,36 @@ mod tests {
     use crate::bspline::{BSplineSurface, KnotVector};
     use crate::depth::Pose;
 
-    /// On a flat parallelogram seen by an orthographic camera, a texel's projection, depth key,
-    /// cosine and resolution are affine in `(u, v)`, so the nodes' bilinear interpolation must
-    /// give every texel exactly what the camera gives its surface point; and a texel's pixel
-    /// from the kept node pixels is its look's pixel to the last bit. The atlas's side (99)
-    /// leaves a last node cell narrower than the others.
-    /// A flat parallelogram `F = o + u a + v b` seen by an orthographic camera of scale `s`
-    /// needs `s · max(|P R a|, |P R b|)` texels at every point: the side is that rounded up to
-    /// a multiple of 128, held to 256..=2048; a camera that sees it edge-on or from behind
-    /// asks for nothing.
-    #[test]
-    fn the_automatic_side_gives_a_texel_per_pixel_of_the_sharpest_camera() {
+    /// The flat parallelogram `F(u, v) = o + u a + v b` over the unit square (degree 1), with
+    /// `a` and `b`.
+    fn parallelogram() -> (BSplineSurface, Vector3<Real>, Vector3<Real>) {
         let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
         let (origin, a, b) = (
             Vector3::new(-30.0, -40.0, 5.0),
             Vector3::new(60.0, 0.0, 6.0),
             Vector3::new(3.0, 80.0, -4.0),
         );
+        // Row i is u = i, column j is v = j.
         let corners = vec![
             Point3::from(origin),
             Point3::from(origin + b),
             Point3::from(origin + a),
             Point3::from(origin + a + b),
         ];
-        let surface = BSplineSurface::new(knots.clone(), knots, 2, 2, corners).unwrap();
+        (
+            BSplineSurface::new(knots.clone(), knots, 2, 2, corners).unwrap(),
+            a,
+            b,
+        )
+    }
+
+    /// A flat parallelogram `F = o + u a + v b` seen by an orthographic camera of scale `s`
+    /// needs `s · max(|P R a|, |P R b|)` texels at every point: the side is that rounded up to
+    /// a multiple of 128, held to 256..=2048; a camera that sees it edge-on or from behind
+    /// asks for nothing.
+    #[test]
+    fn the_automatic_side_gives_a_texel_per_pixel_of_the_sharpest_camera() {
+        let (surface, a, b) = parallelogram();
         let clip = [
             Point2::new(0.0, 0.0),
             Point2::new(1.0, 0.0),
@@ -1345,22 +1351,14 @@ mod tests {
         assert_eq!(side(12.0, 85.0), AUTOMATIC_MIN_SIDE);
     }
 
+    /// On a flat parallelogram seen by an orthographic camera, a texel's projection, depth key,
+    /// cosine and resolution are affine in `(u, v)`, so the nodes' bilinear interpolation must
+    /// give every texel exactly what the camera gives its surface point; and a texel's pixel
+    /// from the kept node pixels is its look's pixel to the last bit. The atlas's side (99)
+    /// leaves a last node cell narrower than the others.
     #[test]
     fn texel_looks_interpolate_the_nodes_exactly_where_the_projection_is_affine() {
-        let knots = KnotVector::clamped_uniform(1, 2, 0.0, 1.0).unwrap();
-        let (origin, a, b) = (
-            Vector3::new(-30.0, -40.0, 5.0),
-            Vector3::new(60.0, 0.0, 6.0),
-            Vector3::new(3.0, 80.0, -4.0),
-        );
-        // Row i is u = i, column j is v = j.
-        let corners = vec![
-            Point3::from(origin),
-            Point3::from(origin + b),
-            Point3::from(origin + a),
-            Point3::from(origin + a + b),
-        ];
-        let surface = BSplineSurface::new(knots.clone(), knots, 2, 2, corners).unwrap();
+        let (surface, a, b) = parallelogram();
         let pose = Pose::from_yaw_pitch_roll_degrees(20.0, -10.0, 5.0, 7.0);
         let camera = RefinedCamera::orthographic(&pose, Point2::new(30.0, -20.0), (800, 1000));
         let side = 99;
