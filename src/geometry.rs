@@ -142,15 +142,6 @@ impl LengthUnit {
         }
     }
 
-    /// `mm`, `cm` or `m`.
-    pub fn symbol(self) -> &'static str {
-        match self {
-            LengthUnit::Millimetre => "mm",
-            LengthUnit::Centimetre => "cm",
-            LengthUnit::Metre => "m",
-        }
-    }
-
     /// The unit's name in the plural: `millimetres`, `centimetres` or `metres`.
     pub fn plural(self) -> &'static str {
         match self {

@@ -81,8 +81,8 @@ pub struct TextureOptions {
 }
 
 impl Default for TextureOptions {
-    /// An atlas sized to the photos ([`automatic_atlas_side`]), `p = 1` (each texel the weighted mean of the photos that see it),
-    /// colours matched, mirror filling on.
+    /// An atlas sized to the photos ([`automatic_atlas_side`]), `p = 1` (each texel the
+    /// weighted mean of the photos that see it), colours matched, mirror filling on.
     ///
     /// Measured by `tools/texture_eval` (`lps-head`'s given photo sets through the whole photo
     /// path; every texel against the scan's own colour map after one gain per channel; sRGB
@@ -274,14 +274,15 @@ pub const AUTOMATIC_COVERAGE: Real = 0.9;
 ///
 /// | side | photos-8 | photos-3 |
 /// |---|---|---|
-/// | 1024 (the former default) | 16.37 / 21.72 dB / 1.37, 736 ms | 14.52 / 22.45 dB / 1.25, 322 ms |
-/// | **768** | 16.36 / 21.72 dB / 1.34, 421 ms | 14.49 / 22.47 dB / 1.18, 183 ms |
-/// | 512 | 16.32 / 21.74 dB / 1.29, 187 ms | 14.46 / 22.50 dB / 1.17, 108 ms |
-/// | 256 | 16.24 / 21.79 dB / 1.28, 58 ms | 14.36 / 22.57 dB / 1.12, 37 ms |
+/// | 1024 (the former default) | 16.37 / 21.72 dB / 1.37, 720 ms | 14.52 / 22.45 dB / 1.25, 396 ms |
+/// | **768** | 16.36 / 21.72 dB / 1.34, 467 ms | 14.49 / 22.47 dB / 1.18, 189 ms |
+/// | 512 | 16.32 / 21.74 dB / 1.29, 227 ms | 14.46 / 22.50 dB / 1.17, 105 ms |
+/// | 256 | 16.24 / 21.79 dB / 1.28, 94 ms | 14.36 / 22.57 dB / 1.12, 28 ms |
 ///
-/// The comparison cannot see detail finer than the reconstruction's registration to the scan
-/// (about a millimetre, three pixels), so it rewards blur a little; the rule keeps the photos'
-/// own resolution rather than the smallest atlas that scores as well.
+/// (`tools/results/texture.md`.) The comparison cannot see detail finer than the
+/// reconstruction's registration to the scan (about a millimetre, two or three pixels), so it
+/// rewards blur a little; the rule keeps the photos' own resolution rather than the smallest
+/// atlas that scores as well.
 ///
 /// # Errors
 /// [`FaceError::Kernel`] if the surface cannot be evaluated over its unit domain.
