@@ -200,12 +200,13 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 /// Writes several files in two phases: first every file's bytes go to a temporary beside it,
-/// flushed to disk; only when all are staged are they renamed over their paths, one after the
+/// flushed to disk (the files side by side); only when all are staged are they renamed over their paths, one after the
 /// other. A run killed while computing or staging leaves every previous output untouched (and
 /// temporaries, which the next write of those paths removes); only a kill within the renames,
 /// a few syscalls long, leaves some files new and some old, each of them whole.
 ///
-/// If staging fails, the temporaries are removed and nothing changed. If a rename fails, the
+/// If staging fails, the temporaries are removed and nothing changed; the error names the
+/// first file in `files`' order that failed. If a rename fails, the
 /// files this call already renamed into place are removed as well, so a failed call leaves none
 /// of its files (it does not restore files they replaced).
 ///
@@ -214,18 +215,43 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 pub fn write_files_atomically(
     files: &[(std::path::PathBuf, Vec<u8>)],
 ) -> Result<(), (std::path::PathBuf, std::io::Error)> {
+    let borrowed: Vec<(std::path::PathBuf, &[u8])> = files
+        .iter()
+        .map(|(path, bytes)| (path.clone(), bytes.as_slice()))
+        .collect();
+    stage_and_rename(&borrowed)
+}
+
+/// [`write_files_atomically`] of borrowed bytes.
+fn stage_and_rename(
+    files: &[(std::path::PathBuf, &[u8])],
+) -> Result<(), (std::path::PathBuf, std::io::Error)> {
+    use rayon::prelude::*;
+    // The files are staged side by side: their flushes to disk then overlap (a file system
+    // commits them together) rather than waiting for one another.
+    let results: Vec<std::io::Result<std::path::PathBuf>> = files
+        .par_iter()
+        .map(|(path, bytes)| {
+            remove_stale_temporaries(path);
+            stage(path, bytes)
+        })
+        .collect();
     let mut staged = Vec::with_capacity(files.len());
-    for (path, bytes) in files {
-        remove_stale_temporaries(path);
-        match stage(path, bytes) {
+    let mut failure = None;
+    for (k, result) in results.into_iter().enumerate() {
+        match result {
             Ok(temporary) => staged.push(temporary),
+            // The first failure in the files' order is the one reported.
             Err(e) => {
-                for temporary in &staged {
-                    let _ = std::fs::remove_file(temporary);
-                }
-                return Err((path.clone(), e));
+                failure.get_or_insert((k, e));
             }
         }
+    }
+    if let Some((k, e)) = failure {
+        for temporary in &staged {
+            let _ = std::fs::remove_file(temporary);
+        }
+        return Err((files[k].0.clone(), e));
     }
     for (k, ((path, _), temporary)) in files.iter().zip(&staged).enumerate() {
         if let Err(e) = std::fs::rename(temporary, path) {
@@ -417,8 +443,8 @@ pub fn write_into(out: &Path, files: &[(PathBuf, Vec<u8>)]) -> Result<(), Output
             error,
         })?;
     }
-    let absolute: Vec<(PathBuf, Vec<u8>)> = files.iter().map(|(p, b)| (out.join(p), b.clone())).collect();
-    write_files_atomically(&absolute).map_err(|(path, error)| OutputError::Write { path, error })
+    let absolute: Vec<(PathBuf, &[u8])> = files.iter().map(|(p, b)| (out.join(p), b.as_slice())).collect();
+    stage_and_rename(&absolute).map_err(|(path, error)| OutputError::Write { path, error })
 }
 
 /// A file that could not be encoded in memory: data the format cannot hold (a heatmap whose

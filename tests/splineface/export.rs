@@ -422,3 +422,35 @@ fn step_reads_back_with_an_independent_reader() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A set of files is written all or nothing, the files staged side by side: when two of them
+/// cannot be staged (a file stands where their folder would be), the first in the set's order is
+/// named, and neither the others nor any temporary is left; otherwise every file holds its bytes
+/// and no temporary is left.
+#[test]
+fn a_set_of_files_is_written_all_or_nothing() {
+    let dir = scratch("set");
+    std::fs::write(dir.join("blocker"), b"a file, not a folder").unwrap();
+    let file = |name: &str| (dir.join(name), name.as_bytes().repeat(1000));
+    let mut files: Vec<(PathBuf, Vec<u8>)> = (0..24).map(|k| file(&format!("f{k}.bin"))).collect();
+    files.insert(9, file("blocker/first.bin"));
+    files.insert(17, file("blocker/second.bin"));
+    let (path, _) = splineface::io::write_files_atomically(&files).unwrap_err();
+    assert_eq!(path, dir.join("blocker/first.bin"));
+    let left = |dir: &PathBuf| {
+        let mut names: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    };
+    assert_eq!(left(&dir), ["blocker"]);
+    files.retain(|(p, _)| !p.starts_with(dir.join("blocker")));
+    splineface::io::write_files_atomically(&files).unwrap();
+    for (path, bytes) in &files {
+        assert_eq!(&std::fs::read(path).unwrap(), bytes);
+    }
+    assert_eq!(left(&dir).len(), files.len() + 1, "{:?}", left(&dir));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
