@@ -200,15 +200,16 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 /// Writes several files in two phases: first every file's bytes go to a temporary beside it,
-/// flushed to disk (the files side by side); only when all are staged are they renamed over their paths, one after the
-/// other. A run killed while computing or staging leaves every previous output untouched (and
-/// temporaries, which the next write of those paths removes); only a kill within the renames,
-/// a few syscalls long, leaves some files new and some old, each of them whole.
+/// flushed to disk (the files side by side); only when all are staged are they renamed over
+/// their paths, one after the other. A run killed while computing or staging leaves every
+/// previous output untouched (and temporaries, which the next write of those paths removes);
+/// only a kill within the renames, a few syscalls long, leaves some files new and some old,
+/// each of them whole.
 ///
 /// If staging fails, the temporaries are removed and nothing changed; the error names the
-/// first file in `files`' order that failed. If a rename fails, the
-/// files this call already renamed into place are removed as well, so a failed call leaves none
-/// of its files (it does not restore files they replaced).
+/// first file in `files`' order that failed. If a rename fails, the files this call already
+/// renamed into place are removed as well, so a failed call leaves none of its files (it does
+/// not restore files they replaced).
 ///
 /// # Errors
 /// The path that failed and its I/O error.
