@@ -141,3 +141,13 @@ pub fn splineface(args: &[&str]) -> std::process::Output {
 pub fn s(p: &std::path::Path) -> String {
     p.to_str().unwrap().to_owned()
 }
+
+/// The names of the entries of `dir`, sorted.
+pub fn file_names(dir: &std::path::Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}

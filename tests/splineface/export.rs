@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+use super::common::file_names;
+
 use nalgebra::{Point2, Point3};
 use splineface::Real;
 use splineface::bspline::{StepOptions, encode_step};
@@ -156,11 +158,7 @@ fn writers_leave_nothing_behind_on_failure() {
     assert!(write_obj(&dir.join("face.obj"), &textured, Some(&texture_png())).is_err());
     assert!(!dir.join("face.png").exists() && !dir.join("face.mtl").exists());
     assert!(write_glb(&missing.with_extension("glb"), &clipped.mesh, "face", None).is_err());
-    let leftovers: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name())
-        .collect();
-    assert_eq!(leftovers, vec![std::ffi::OsString::from("face.obj")]);
+    assert_eq!(file_names(&dir), ["face.obj"]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -437,20 +435,12 @@ fn a_set_of_files_is_written_all_or_nothing() {
     files.insert(17, file("blocker/second.bin"));
     let (path, _) = splineface::io::write_files_atomically(&files).unwrap_err();
     assert_eq!(path, dir.join("blocker/first.bin"));
-    let left = |dir: &PathBuf| {
-        let mut names: Vec<String> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
-        names
-    };
-    assert_eq!(left(&dir), ["blocker"]);
+    assert_eq!(file_names(&dir), ["blocker"]);
     files.retain(|(p, _)| !p.starts_with(dir.join("blocker")));
     splineface::io::write_files_atomically(&files).unwrap();
     for (path, bytes) in &files {
         assert_eq!(&std::fs::read(path).unwrap(), bytes);
     }
-    assert_eq!(left(&dir).len(), files.len() + 1, "{:?}", left(&dir));
+    assert_eq!(file_names(&dir).len(), files.len() + 1, "{:?}", file_names(&dir));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -261,11 +261,7 @@ fn an_output_file_is_checked_before_any_work() {
     );
     assert!(error.to_string().contains("is not a directory"), "{error}");
     // Nothing was left behind by the probes.
-    let left: Vec<_> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name())
-        .collect();
-    assert_eq!(left, ["a-file"]);
+    assert_eq!(super::common::file_names(&dir), ["a-file"]);
 }
 
 #[test]

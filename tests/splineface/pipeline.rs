@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use super::common::{s, scratch, splineface};
+use super::common::{file_names, s, scratch, splineface};
 
 use splineface::demo::{SceneOptions, scene, subject};
 use splineface::pipeline::{PipelineOptions, reconstruct};
@@ -644,16 +644,8 @@ fn reconstruct_detects_and_landmarks_faces() {
     assert!(out.join("face.glb").is_file());
     // An overlay for every photo that decodes, used or skipped; the truncated file has none
     // (its reason is in the report and on the page).
-    let names = |dir: &Path| -> Vec<String> {
-        let mut names: Vec<String> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        names.sort();
-        names
-    };
     assert_eq!(
-        names(&out.join("overlays")),
+        file_names(&out.join("overlays")),
         [
             "bald_guys.png",
             "dogs.png",
@@ -671,7 +663,7 @@ fn reconstruct_detects_and_landmarks_faces() {
     // The detected landmarks as .pts, read back by --landmarks: the same points, so the same
     // face.
     assert_eq!(
-        names(&out.join("landmarks")),
+        file_names(&out.join("landmarks")),
         ["tom-mirrored.pts", "tom-with-a-small-face.pts", "tom.pts"]
     );
     for name in &used {
@@ -717,7 +709,10 @@ fn reconstruct_detects_and_landmarks_faces() {
         let json = splineface::landmarks::read_landmarks_json(&alone.join(format!("{name}.json"))).unwrap();
         assert_eq!(json.scheme, splineface::landmarks::Scheme::Ibug68);
     }
-    assert_eq!(names(&alone.join("overlays")), names(&out.join("overlays")));
+    assert_eq!(
+        file_names(&alone.join("overlays")),
+        file_names(&out.join("overlays"))
+    );
     // With the bar above the usable photos, the run stops and lists every skipped photo.
     let strict = splineface(&[
         "reconstruct",
