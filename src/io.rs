@@ -216,16 +216,12 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 pub fn write_files_atomically(
     files: &[(std::path::PathBuf, Vec<u8>)],
 ) -> Result<(), (std::path::PathBuf, std::io::Error)> {
-    let borrowed: Vec<(std::path::PathBuf, &[u8])> = files
-        .iter()
-        .map(|(path, bytes)| (path.clone(), bytes.as_slice()))
-        .collect();
-    stage_and_rename(&borrowed)
+    stage_and_rename(files)
 }
 
-/// [`write_files_atomically`] of borrowed bytes.
-fn stage_and_rename(
-    files: &[(std::path::PathBuf, &[u8])],
+/// [`write_files_atomically`] of owned or borrowed bytes.
+fn stage_and_rename<B: AsRef<[u8]> + Sync>(
+    files: &[(std::path::PathBuf, B)],
 ) -> Result<(), (std::path::PathBuf, std::io::Error)> {
     use rayon::prelude::*;
     // The files are staged side by side: their flushes to disk then overlap (a file system
@@ -234,7 +230,7 @@ fn stage_and_rename(
         .par_iter()
         .map(|(path, bytes)| {
             remove_stale_temporaries(path);
-            stage(path, bytes)
+            stage(path, bytes.as_ref())
         })
         .collect();
     let mut staged = Vec::with_capacity(files.len());

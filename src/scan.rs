@@ -823,8 +823,7 @@ impl ScanFit {
         for uv in &self.params {
             filled[cell_of(uv[0], n) * n + cell_of(uv[1], n)] = true;
         }
-        let largest = largest_group(&filled, n);
-        let mut region: Vec<bool> = largest;
+        let mut region = largest_group(&filled, n);
         // Fill holes and join corner-only contacts until neither changes anything.
         loop {
             let outside = reachable_from_border(&region, n);
