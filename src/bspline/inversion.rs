@@ -3,8 +3,10 @@
 //!
 //! [`ClosestPoints`] samples the surface once (`SAMPLES_PER_SPAN` points a knot span in each
 //! direction) into a k-d tree, and bounds each knot-span pair by the box of its Bézier control
-//! points (the convex hull property) in a bounding-volume tree. A query starts at its nearest
-//! sample, moved by a Gauss–Newton step from the sample's stored tangents (no evaluation), and
+//! points (the convex hull property) in a bounding-volume tree. A query starts at a sample near
+//! it (one lookup in a grid of cubes about a sample cell's size, [`StartGrid`]; its nearest
+//! sample from the k-d tree when its cube holds none), moved by a Gauss–Newton step from the
+//! sample's stored tangents (no evaluation), and
 //! runs a damped Newton iteration on `½|F(u, v) − P|²` (the full Hessian
 //! `FᵤᵀFᵤ + (F − P)·Fᵤᵤ, …`, falling back to Gauss-Newton where that is not positive
 //! definite), each step projected onto the start's *piece* with the coordinates held on a
@@ -24,17 +26,16 @@
 //!
 //! Speed (`cargo bench --bench bspline -- inversion`, one core): about 0.98 M queries/s on a
 //! 32 × 32 bicubic at 0.1% of its size from it (0.39–0.41 M before the changes below, in the
-//! same runs), 4.6 surface evaluations a query; the first step from the sample's tangents and
-//! the last from the expansion then brought the evaluations from 5.0 to 2.4 a query (a random
-//! bicubic height field) and the queries per second up by a fifth (0.63–0.65 M → 0.78 M on a
-//! slower day of the machine, the same runs). What it took: a k-d tree with leaves of
+//! same runs), 4.6 surface evaluations a query. Then the first step from the sample's tangents
+//! and the last from the expansion brought the evaluations from 5.0 to 2.4 a query (a random
+//! bicubic height field), and the start by lookup replaced most of the k-d tree's searches (a
+//! quarter of the time): 1.00 M → 1.40 M queries/s in the same runs (the index's build 3.2 →
+//! 3.9 ms). What it took before: a k-d tree with leaves of
 //! [`LEAF`] points whose coordinates lie in planes, searched without recursion; Newton's
 //! derivatives with loops of compile-time length for equal degrees 2 and 3; a batch's queries
 //! gathered before they are answered ([`crate::mesh`]'s Morton order: read one by one, each
 //! missed the cache);
-//! no allocation per query. What remains, in the profile's order: the derivatives (a third),
-//! the start's and the span boxes' searches (a third together), Newton's own arithmetic (a
-//! seventh).
+//! no allocation per query.
 
 use std::borrow::Cow;
 
@@ -55,8 +56,10 @@ const MAX_STEPS: usize = 30;
 /// the surface there: the point is taken from the second-order Taylor expansion at the last
 /// evaluation, whose remainder (of the order of the step cubed, about 10⁻²¹ of the size) is
 /// below rounding, and Newton's next step (of the order of the step squared, about 10⁻¹⁴)
-/// below [`ClosestPoints`]' tolerance. This saves the evaluation that only confirmed
-/// convergence.
+/// below [`ClosestPoints`]' tolerance. The step must also be below `√(10⁻¹² · size · |r|)`
+/// (`r` the residual), so that the next step's part along the surface stays within 10⁻¹² of
+/// `|r|`, the zero-cosine test's, however near the query lies. This saves the evaluation that
+/// only confirmed convergence.
 const LAST_STEP: Real = 1e-7;
 
 /// How far inside its span (a fraction of the span's width) a span's start is kept from the
@@ -360,6 +363,73 @@ impl KdTree {
     }
 }
 
+/// A uniform grid of cubes over the samples' box, each holding the sample nearest its centre
+/// among those inside it: a query's start in one lookup where the query lies in a cube that
+/// holds a sample (the use: points near the surface), and the k-d tree's otherwise.
+#[derive(Debug, Clone)]
+struct StartGrid {
+    lo: Point3<Real>,
+    /// `1 / side`.
+    inverse: Real,
+    dims: [usize; 3],
+    /// Per cube (`x` fastest), its sample, or `u32::MAX` for none.
+    cubes: Vec<u32>,
+}
+
+/// Cubes per sample at most in a [`StartGrid`] (its memory, and its build time).
+const CUBES_PER_SAMPLE: usize = 8;
+
+impl StartGrid {
+    /// Cubes of side `side` at least (made larger until there are at most
+    /// [`CUBES_PER_SAMPLE`] a sample).
+    fn new(points: &[Point3<Real>], side: Real) -> Self {
+        let (lo, hi) = bounds(points.iter().copied());
+        let extent = hi - lo;
+        let mut side = side.max(extent.max() * 1e-9).max(Real::MIN_POSITIVE);
+        let dims = loop {
+            let dims = [0, 1, 2].map(|a| (extent[a] / side).floor() as usize + 1);
+            if dims.iter().product::<usize>() <= CUBES_PER_SAMPLE * points.len().max(1) {
+                break dims;
+            }
+            side *= 1.25;
+        };
+        let inverse = 1.0 / side;
+        let mut cubes = vec![u32::MAX; dims.iter().product()];
+        let mut nearest = vec![Real::INFINITY; cubes.len()];
+        for (k, p) in points.iter().enumerate() {
+            let at = [0, 1, 2].map(|a| (((p[a] - lo[a]) * inverse) as usize).min(dims[a] - 1));
+            let cube = (at[2] * dims[1] + at[1]) * dims[0] + at[0];
+            let centre = lo + Vector3::from(at.map(|i| (i as Real + 0.5) * side));
+            let d = (p - centre).norm_squared();
+            if d < nearest[cube] {
+                nearest[cube] = d;
+                cubes[cube] = k as u32;
+            }
+        }
+        StartGrid {
+            lo,
+            inverse,
+            dims,
+            cubes,
+        }
+    }
+
+    /// The sample of the cube that holds `query`, if it holds one.
+    fn start(&self, query: &Point3<Real>) -> Option<usize> {
+        let mut cube = 0;
+        for a in (0..3).rev() {
+            let t = (query[a] - self.lo[a]) * self.inverse;
+            // Written so that NaN fails too (queries are finite; the box's is not checked).
+            if !(t >= 0.0 && t < self.dims[a] as Real) {
+                return None;
+            }
+            cube = cube * self.dims[a] + t as usize;
+        }
+        let k = self.cubes[cube];
+        (k != u32::MAX).then_some(k as usize)
+    }
+}
+
 /// A bounding-volume hierarchy over boxes (median splits on the longest axis of the centres),
 /// for the boxes within a distance of a point.
 #[derive(Debug, Clone)]
@@ -481,6 +551,8 @@ pub struct ClosestPoints<'a> {
     us: Vec<Real>,
     vs: Vec<Real>,
     tree: KdTree,
+    /// Starts by lookup for queries near the samples.
+    grid: StartGrid,
     /// Each sample's tangents `(Fᵤ, F_v)` (within the sample's piece), in the samples' order:
     /// the first Newton step is taken from them without evaluating the surface.
     tangents: Vec<[Vector3<Real>; 2]>,
@@ -596,6 +668,7 @@ impl<'a> ClosestPoints<'a> {
             creases_v,
             us,
             vs,
+            grid: StartGrid::new(&points, reach),
             tree: KdTree::new(points),
             tangents,
             // A cell bulges by little more than its diagonal's tenth for the spans sampled.
@@ -658,7 +731,7 @@ impl<'a> ClosestPoints<'a> {
     /// answer has been in), keeping the nearest answer.
     /// `scratch` holds lists between queries (their contents do not matter).
     fn search(&self, query: &Point3<Real>, scratch: &mut Scratch) -> ClosestPoint {
-        let nearest = self.tree.nearest(query);
+        let nearest = self.grid.start(query).unwrap_or_else(|| self.tree.nearest(query));
         let (cell, sample) = self.sample(nearest);
         let piece = self.piece(sample[0], sample[1]);
         let start = self.first_step(query, nearest, &piece);
@@ -807,7 +880,7 @@ impl<'a> ClosestPoints<'a> {
             let (nu, nv) = (u + step[0], v + step[1]);
             if (u0..=u1).contains(&nu)
                 && (v0..=v1).contains(&nv)
-                && (fu * step[0] + fv * step[1]).norm() < self.last_step
+                && (fu * step[0] + fv * step[1]).norm() < self.last_step.min((self.tolerance * rn).sqrt())
             {
                 let [du, dv] = step;
                 let point = d[0]
@@ -933,6 +1006,51 @@ mod tests {
             exact += usize::from(eu == u && ev == v);
         }
         assert!(exact > 400, "{exact} of 500 steps landed on the foot");
+    }
+
+    /// The start grid gives, for a query in a cube, the sample of that cube nearest its centre
+    /// (brute force over the samples), and nothing for an empty cube or outside the box.
+    #[test]
+    fn the_start_grid_holds_each_cubes_sample_nearest_its_centre() {
+        let mut rng = Lcg(8);
+        let points: Vec<Point3<Real>> = (0..300)
+            .map(|_| {
+                Point3::new(
+                    rng.uniform(0.0, 4.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(0.0, 0.3),
+                )
+            })
+            .collect();
+        let grid = StartGrid::new(&points, 0.2);
+        let side = 1.0 / grid.inverse;
+        assert!(grid.cubes.len() <= CUBES_PER_SAMPLE * points.len());
+        let cube_of = |p: &Point3<Real>| {
+            [0, 1, 2].map(|a| (((p[a] - grid.lo[a]) / side) as usize).min(grid.dims[a] - 1))
+        };
+        for _ in 0..2000 {
+            let q = Point3::new(
+                rng.uniform(-0.5, 4.5),
+                rng.uniform(-1.5, 1.5),
+                rng.uniform(-0.2, 0.5),
+            );
+            let inside =
+                (0..3).all(|a| q[a] >= grid.lo[a] && q[a] < grid.lo[a] + side * grid.dims[a] as Real);
+            let expected = inside
+                .then(|| {
+                    let c = cube_of(&q);
+                    let centre = grid.lo + Vector3::from(c.map(|i| (i as Real + 0.5) * side));
+                    (0..points.len())
+                        .filter(|&k| cube_of(&points[k]) == c)
+                        .min_by(|&a, &b| {
+                            (points[a] - centre)
+                                .norm_squared()
+                                .total_cmp(&(points[b] - centre).norm_squared())
+                        })
+                })
+                .flatten();
+            assert_eq!(grid.start(&q), expected, "query {q}");
+        }
     }
 
     /// The fixed-degree derivatives are the general form's, bit for bit (the same sums in the
