@@ -15,8 +15,7 @@
 //! degree where the surface is only C⁰: the distance has a kink there, so a minimum on a
 //! crease is found as one on a piece's edge, with the piece's one-sided derivatives. Newton
 //! stops when the step moves the surface point by less than `1e-12` of the surface's size, or
-//! when the residual is perpendicular to the surface to `1e-12` (the book's two zero tests),
-//! or after a step small enough that its point is the second-order expansion's ([`LAST_STEP`]).
+//! when the residual is perpendicular to the surface to `1e-12` (the book's two zero tests).
 //! Then every other span whose box comes nearer the query than that answer is searched from
 //! its own nearest sample (kept just inside the span, so that the search stays in the span's
 //! own piece), and the nearest answer is kept: the answer is the global one across
@@ -26,11 +25,13 @@
 //!
 //! Speed (`cargo bench --bench bspline -- inversion`, one core): about 0.98 M queries/s on a
 //! 32 × 32 bicubic at 0.1% of its size from it (0.39–0.41 M before the changes below, in the
-//! same runs), 4.6 surface evaluations a query. Then the first step from the sample's tangents
-//! and the last from the expansion brought the evaluations from 5.0 to 2.4 a query (a random
-//! bicubic height field), and the start by lookup replaced most of the k-d tree's searches (a
-//! quarter of the time): 1.00 M → 1.40 M queries/s in the same runs (the index's build 3.2 →
-//! 3.9 ms). What it took before: a k-d tree with leaves of
+//! same runs), 4.6 surface evaluations a query. Then the first Newton step taken from the
+//! sample's stored tangents (no evaluation), and the start by lookup instead of most of the
+//! k-d tree's searches (they were a quarter of the time): 1.00–1.11 M → 1.30–1.31 M queries/s,
+//! each pair measured back to back (the index's build 3.2 → 3.6 ms). A last step taken from the second-order expansion, without evaluating,
+//! was measured and dropped: where the tangents are short, a step short in space is long in
+//! the parameters, and the property test found the expansion's point and the stationarity
+//! off by more than their tolerances. What it took before: a k-d tree with leaves of
 //! [`LEAF`] points whose coordinates lie in planes, searched without recursion; Newton's
 //! derivatives with loops of compile-time length for equal degrees 2 and 3; a batch's queries
 //! gathered before they are answered ([`crate::mesh`]'s Morton order: read one by one, each
@@ -50,17 +51,6 @@ pub const SAMPLES_PER_SPAN: usize = 3;
 
 /// The most Newton steps a query takes.
 const MAX_STEPS: usize = 30;
-
-/// A Newton step from inside the piece that the quadratic model predicts will move the surface
-/// point by less than this fraction of the surface's size ends the search without evaluating
-/// the surface there: the point is taken from the second-order Taylor expansion at the last
-/// evaluation, whose remainder (of the order of the step cubed, about 10⁻²¹ of the size) is
-/// below rounding, and Newton's next step (of the order of the step squared, about 10⁻¹⁴)
-/// below [`ClosestPoints`]' tolerance. The step must also be below `√(10⁻¹² · size · |r|)`
-/// (`r` the residual), so that the next step's part along the surface stays within 10⁻¹² of
-/// `|r|`, the zero-cosine test's, however near the query lies. This saves the evaluation that
-/// only confirmed convergence.
-const LAST_STEP: Real = 1e-7;
 
 /// How far inside its span (a fraction of the span's width) a span's start is kept from the
 /// span's upper edge (and where an answer on a piece's upper edge is looked up).
@@ -568,9 +558,6 @@ pub struct ClosestPoints<'a> {
     creases_v: Vec<Real>,
     /// Steps that move the surface point less than this have converged.
     tolerance: Real,
-    /// A Newton step predicted to move the surface point less than this is the last: see
-    /// [`LAST_STEP`].
-    last_step: Real,
     /// The basis functions of each span in `u` and `v`, for Newton's derivatives.
     basis: [SpanPolynomials; 2],
 }
@@ -674,7 +661,6 @@ impl<'a> ClosestPoints<'a> {
             // A cell bulges by little more than its diagonal's tenth for the spans sampled.
             reach: 1.1 * reach,
             tolerance: 1e-12 * size,
-            last_step: LAST_STEP * size,
             basis,
         }
     }
@@ -876,23 +862,6 @@ impl<'a> ClosestPoints<'a> {
             let Some(mut step) = solve(full).or_else(|| solve((a, b, c))) else {
                 break;
             };
-            // The last step (see `LAST_STEP`): inside the piece, the point from the expansion.
-            let (nu, nv) = (u + step[0], v + step[1]);
-            if (u0..=u1).contains(&nu)
-                && (v0..=v1).contains(&nv)
-                && (fu * step[0] + fv * step[1]).norm() < self.last_step.min((self.tolerance * rn).sqrt())
-            {
-                let [du, dv] = step;
-                let point = d[0]
-                    + fu * du
-                    + fv * dv
-                    + (d[3] * (du * du) + d[4] * (2.0 * du * dv) + d[5] * (dv * dv)) * 0.5;
-                (u, v) = (nu, nv);
-                r = point - query.coords;
-                d[0] = point;
-                f = r.norm_squared();
-                break;
-            }
             // Damped: halve the step until it does not move away (at most 30 halvings).
             let mut accepted = false;
             for _ in 0..30 {
