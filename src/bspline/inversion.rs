@@ -6,8 +6,8 @@
 //! points (the convex hull property) in a bounding-volume tree. A query starts at a sample near
 //! it (one lookup in a grid of cubes about a sample cell's size, [`StartGrid`]; its nearest
 //! sample from the k-d tree when its cube holds none), moved by a Gauss–Newton step from the
-//! sample's stored tangents (no evaluation), and
-//! runs a damped Newton iteration on `½|F(u, v) − P|²` (the full Hessian
+//! sample's stored tangents (no evaluation), and runs a damped Newton iteration on
+//! `½|F(u, v) − P|²` (the full Hessian
 //! `FᵤᵀFᵤ + (F − P)·Fᵤᵤ, …`, falling back to Gauss-Newton where that is not positive
 //! definite), each step projected onto the start's *piece* with the coordinates held on a
 //! bound they would leave (so that points beyond an edge or a corner find the edge or the
@@ -28,10 +28,11 @@
 //! same runs), 4.6 surface evaluations a query. Then the first Newton step taken from the
 //! sample's stored tangents (no evaluation), and the start by lookup instead of most of the
 //! k-d tree's searches (they were a quarter of the time): 1.00–1.11 M → 1.30–1.31 M queries/s,
-//! each pair measured back to back (the index's build 3.2 → 3.6 ms). A last step taken from the second-order expansion, without evaluating,
-//! was measured and dropped: where the tangents are short, a step short in space is long in
-//! the parameters, and the property test found the expansion's point and the stationarity
-//! off by more than their tolerances. What it took before: a k-d tree with leaves of
+//! each pair measured back to back (the index's build 3.2 → 3.6 ms). A last step taken from
+//! the second-order expansion, without evaluating, was measured and dropped: where the
+//! tangents are short, a step short in space is long in the parameters, and the property test
+//! found the expansion's point and the stationarity off by more than their tolerances. What
+//! it took before: a k-d tree with leaves of
 //! [`LEAF`] points whose coordinates lie in planes, searched without recursion; Newton's
 //! derivatives with loops of compile-time length for equal degrees 2 and 3; a batch's queries
 //! gathered before they are answered ([`crate::mesh`]'s Morton order: read one by one, each
@@ -378,7 +379,8 @@ impl StartGrid {
         let mut side = side.max(extent.max() * 1e-9).max(Real::MIN_POSITIVE);
         let dims = loop {
             let dims = [0, 1, 2].map(|a| (extent[a] / side).floor() as usize + 1);
-            if dims.iter().product::<usize>() <= CUBES_PER_SAMPLE * points.len().max(1) {
+            let cubes = dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+            if cubes.is_some_and(|n| n <= CUBES_PER_SAMPLE * points.len().max(1)) {
                 break dims;
             }
             side *= 1.25;
