@@ -2,11 +2,14 @@
 //! (The NURBS Book §6.1, A6.4/A6.5 in spirit).
 //!
 //! [`ClosestPoints`] samples the surface once (`SAMPLES_PER_SPAN` points a knot span in each
-//! direction) into a k-d tree, and bounds each knot-span pair by the box of its Bézier control
-//! points (the convex hull property) in a bounding-volume tree. A query starts at a sample near
-//! it (one lookup in a grid of cubes about a sample cell's size, [`StartGrid`]; its nearest
-//! sample from the k-d tree when its cube holds none), moved by a Gauss–Newton step from the
-//! sample's stored tangents (no evaluation), and runs a damped Newton iteration on
+//! direction, each with its first and second derivatives) into a k-d tree, and bounds each
+//! knot-span pair by the box of its Bézier control points (the convex hull property) in a
+//! bounding-volume tree. A query starts at a sample near it (one lookup in a grid of cubes
+//! about the median sample cell's size, [`StartGrid`]; its nearest sample from the k-d tree
+//! when its cube holds none), walks over the sample grid to the nearest sample (a neighbour
+//! at a time while one comes nearer), and is moved to the closest point of that sample's
+//! second-order expansion by two Newton steps on the expansion (no evaluation; each held
+//! within a sample spacing and the piece). From there it runs a damped Newton iteration on
 //! `½|F(u, v) − P|²` (the full Hessian
 //! `FᵤᵀFᵤ + (F − P)·Fᵤᵤ, …`, falling back to Gauss-Newton where that is not positive
 //! definite), each step projected onto the start's *piece* with the coordinates held on a
@@ -23,21 +26,26 @@
 //! hide the farther-from-the-start one; the property tests, on height fields with slopes up to
 //! about ½, never saw it).
 //!
-//! Speed (`cargo bench --bench bspline -- inversion`, one core): about 0.98 M queries/s on a
-//! 32 × 32 bicubic at 0.1% of its size from it (0.39–0.41 M before the changes below, in the
-//! same runs), 4.6 surface evaluations a query. Then the first Newton step taken from the
-//! sample's stored tangents (no evaluation), and the start by lookup instead of most of the
-//! k-d tree's searches (they were a quarter of the time): 1.00–1.11 M → 1.30–1.31 M queries/s,
-//! each pair measured back to back (the index's build 3.2 → 3.6 ms). A last step taken from
-//! the second-order expansion, without evaluating, was measured and dropped: where the
-//! tangents are short, a step short in space is long in the parameters, and the property test
-//! found the expansion's point and the stationarity off by more than their tolerances. What
-//! it took before: a k-d tree with leaves of
-//! [`LEAF`] points whose coordinates lie in planes, searched without recursion; Newton's
-//! derivatives with loops of compile-time length for equal degrees 2 and 3; a batch's queries
-//! gathered before they are answered ([`crate::mesh`]'s Morton order: read one by one, each
-//! missed the cache);
-//! no allocation per query.
+//! Spans whose boxes could hold a nearer answer are found from per-cube lists of the boxes
+//! within a cube's side of it, kept when they stay short (at most [`NEAR_PER_CUBE`] entries a
+//! cube on average), else from the bounding-volume tree; both give the same spans.
+//!
+//! Speed (`cargo bench --bench bspline -- inversion`, one core, a 32 × 32 bicubic at 0.1% of
+//! its size from it): 0.39–0.41 M queries/s at first; 0.98 M with a k-d tree of [`LEAF`]
+//! points a leaf searched without recursion, Newton's derivatives in loops of compile-time
+//! length for degrees 2 and 3, a batch's queries in [`crate::mesh`]'s Morton order (read one
+//! by one, each missed the cache) and no allocation per query; 1.30 M with the first step
+//! from stored tangents and the start by lookup. Then, against that code in the same runs
+//! (criterion baselines): the start at the expansion's closest point after the walk (surface
+//! evaluations a query 4.4 → 3.3, Newton's first move about 0.2 → 1e-4 of a sample cell)
+//! 1.70 → 1.72 M; the per-cube box lists (the tree's search was a fifth of the time) 1.94 M;
+//! Newton's tests on squares with one reciprocal a step 2.04 M; the Morton order's radix sort
+//! 2.17 M. On a 128 × 128 bicubic, 1.31 → 1.70 M; on 512 × 512, 0.98 M either way (the
+//! queries' cache misses dominate). Left alone: the build, 3.0 ms for 32 × 32 and 1.3 s for
+//! 512 × 512 (2.3 M samples with their derivatives). A last step taken from the second-order
+//! expansion, without evaluating, was measured and dropped: where the tangents are short, a
+//! step short in space is long in the parameters, and the property test found the
+//! expansion's point and the stationarity off by more than their tolerances.
 
 use std::borrow::Cow;
 
@@ -49,6 +57,12 @@ use crate::Real;
 
 /// Samples per knot span and direction for the starting points.
 pub const SAMPLES_PER_SPAN: usize = 3;
+
+/// The Newton steps on a sample's second-order expansion that give a query's start.
+const MODEL_STEPS: usize = 2;
+
+/// The most moves of [`ClosestPoints::descend`].
+const WALK: usize = 8;
 
 /// The most Newton steps a query takes.
 const MAX_STEPS: usize = 30;
@@ -354,9 +368,12 @@ impl KdTree {
     }
 }
 
-/// A uniform grid of cubes over the samples' box, each holding the sample nearest its centre
+/// A uniform grid of cubes over the samples' box. Each cube holds the sample nearest its centre
 /// among those inside it: a query's start in one lookup where the query lies in a cube that
-/// holds a sample (the use: points near the surface), and the k-d tree's otherwise.
+/// holds a sample (the use: points near the surface), and the k-d tree's otherwise. Each cube
+/// also lists the boxes (of knot-span pairs) that come within [`StartGrid::margin`] of it: a
+/// query's boxes within a distance up to that margin are among its cube's, so that they are
+/// found without the box tree.
 #[derive(Debug, Clone)]
 struct StartGrid {
     lo: Point3<Real>,
@@ -365,15 +382,25 @@ struct StartGrid {
     dims: [usize; 3],
     /// Per cube (`x` fastest), its sample, or `u32::MAX` for none.
     cubes: Vec<u32>,
+    /// The boxes near each cube: cube `c`'s are `near[offsets[c]..offsets[c + 1]]`, ascending.
+    offsets: Vec<u32>,
+    near: Vec<u32>,
+    /// The distance within which a cube's list holds every box (0 where the lists were not
+    /// made: they would have been too long).
+    margin: Real,
 }
 
 /// Cubes per sample at most in a [`StartGrid`] (its memory, and its build time).
 const CUBES_PER_SAMPLE: usize = 8;
 
+/// Entries a cube at most, on average, in a [`StartGrid`]'s lists of near boxes (else it has
+/// none, and queries use the box tree).
+const NEAR_PER_CUBE: usize = 16;
+
 impl StartGrid {
     /// Cubes of side `side` at least (made larger until there are at most
-    /// [`CUBES_PER_SAMPLE`] a sample).
-    fn new(points: &[Point3<Real>], side: Real) -> Self {
+    /// [`CUBES_PER_SAMPLE`] a sample), with the `boxes` within a cube's side of each cube.
+    fn new(points: &[Point3<Real>], side: Real, boxes: &[(Point3<Real>, Point3<Real>)]) -> Self {
         let (lo, hi) = bounds(points.iter().copied());
         let extent = hi - lo;
         let mut side = side.max(extent.max() * 1e-9).max(Real::MIN_POSITIVE);
@@ -398,16 +425,75 @@ impl StartGrid {
                 cubes[cube] = k as u32;
             }
         }
-        StartGrid {
+        let mut grid = StartGrid {
             lo,
             inverse,
             dims,
             cubes,
-        }
+            offsets: Vec::new(),
+            near: Vec::new(),
+            margin: 0.0,
+        };
+        grid.list_near(boxes, side);
+        grid
     }
 
-    /// The sample of the cube that holds `query`, if it holds one.
-    fn start(&self, query: &Point3<Real>) -> Option<usize> {
+    /// The cubes' lists of the boxes within `margin` of them, unless they would hold more
+    /// than [`NEAR_PER_CUBE`] entries a cube.
+    fn list_near(&mut self, boxes: &[(Point3<Real>, Point3<Real>)], margin: Real) {
+        // Each box widened by a little more than the margin, so that rounding in the cube
+        // indices cannot leave out a cube whose points lie within the margin.
+        let widen = 1.01 * margin;
+        let ranges: Vec<[(usize, usize); 3]> = boxes
+            .iter()
+            .map(|(lo, hi)| {
+                [0, 1, 2].map(|a| {
+                    let at = |t: Real| {
+                        let c = ((t - self.lo[a]) * self.inverse).floor();
+                        c.clamp(0.0, (self.dims[a] - 1) as Real) as usize
+                    };
+                    (at(lo[a] - widen), at(hi[a] + widen))
+                })
+            })
+            .collect();
+        let total = ranges.iter().try_fold(0usize, |n, r| {
+            let count = r.iter().map(|&(a, b)| b - a + 1).product::<usize>();
+            n.checked_add(count)
+        });
+        if !total.is_some_and(|n| n <= NEAR_PER_CUBE * self.cubes.len() && n < u32::MAX as usize) {
+            return;
+        }
+        // Counting sort by cube: counts, offsets, then the boxes in ascending order.
+        let cube = |x: usize, y: usize, z: usize| (z * self.dims[1] + y) * self.dims[0] + x;
+        let each = |r: &[(usize, usize); 3], f: &mut dyn FnMut(usize)| {
+            for z in r[2].0..=r[2].1 {
+                for y in r[1].0..=r[1].1 {
+                    for x in r[0].0..=r[0].1 {
+                        f(cube(x, y, z));
+                    }
+                }
+            }
+        };
+        let mut offsets = vec![0u32; self.cubes.len() + 1];
+        for r in &ranges {
+            each(r, &mut |c| offsets[c + 1] += 1);
+        }
+        for c in 0..self.cubes.len() {
+            offsets[c + 1] += offsets[c];
+        }
+        let mut next = offsets.clone();
+        let mut near = vec![0u32; offsets[self.cubes.len()] as usize];
+        for (k, r) in ranges.iter().enumerate() {
+            each(r, &mut |c| {
+                near[next[c] as usize] = k as u32;
+                next[c] += 1;
+            });
+        }
+        (self.offsets, self.near, self.margin) = (offsets, near, margin);
+    }
+
+    /// The cube that holds `query`, if one does.
+    fn cube(&self, query: &Point3<Real>) -> Option<usize> {
         let mut cube = 0;
         for a in (0..3).rev() {
             let t = (query[a] - self.lo[a]) * self.inverse;
@@ -417,8 +503,26 @@ impl StartGrid {
             }
             cube = cube * self.dims[a] + t as usize;
         }
+        Some(cube)
+    }
+
+    /// The sample of the cube that holds `query`, if it holds one.
+    #[cfg(test)]
+    fn start(&self, query: &Point3<Real>) -> Option<usize> {
+        self.cube(query).and_then(|c| self.sample_of(c))
+    }
+
+    /// The sample of cube `cube`, if it holds one.
+    fn sample_of(&self, cube: usize) -> Option<usize> {
         let k = self.cubes[cube];
         (k != u32::MAX).then_some(k as usize)
+    }
+
+    /// The boxes within `distance` of a point in `cube`, among others, ascending; `None` where
+    /// the distance exceeds the lists' margin.
+    fn near(&self, cube: usize, distance: Real) -> Option<&[u32]> {
+        (distance <= self.margin)
+            .then(|| &self.near[self.offsets[cube] as usize..self.offsets[cube + 1] as usize])
     }
 }
 
@@ -545,14 +649,16 @@ pub struct ClosestPoints<'a> {
     tree: KdTree,
     /// Starts by lookup for queries near the samples.
     grid: StartGrid,
-    /// Each sample's tangents `(Fᵤ, F_v)` (within the sample's piece), in the samples' order:
-    /// the first Newton step is taken from them without evaluating the surface.
-    tangents: Vec<[Vector3<Real>; 2]>,
+    /// Each sample's derivatives `(Fᵤ, F_v, Fᵤᵤ, Fᵤ_v, F_vv)` (within the sample's piece), in
+    /// the samples' order: Newton's start is taken from them without evaluating the surface.
+    derivatives: Vec<[Vector3<Real>; 5]>,
     /// Every point of the surface lies within this of a sample (the largest cell diagonal).
     reach: Real,
     /// The boxes of the knot-span pairs' Bézier control points (row-major over `u` spans),
     /// each holding the surface over its spans (the convex hull property).
     boxes: BoxTree,
+    /// The same boxes, by knot-span pair.
+    span_boxes: Vec<(Point3<Real>, Point3<Real>)>,
     /// Knot spans along `v`.
     spans_v: usize,
     /// The creases along `u` and `v` (see [`Piece`]).
@@ -613,15 +719,21 @@ impl<'a> ClosestPoints<'a> {
         );
         let points = surface.eval_grid(&us, &vs).expect("samples lie in the domain");
         let nv = vs.len();
-        let mut reach: Real = 0.0;
-        for i in 0..us.len() - 1 {
-            for j in 0..nv - 1 {
+        // Each cell's longer diagonal.
+        let mut diagonals: Vec<Real> = (0..us.len() - 1)
+            .flat_map(|i| (0..nv - 1).map(move |j| (i, j)))
+            .map(|(i, j)| {
                 let at = |a: usize, b: usize| points[a * nv + b];
-                reach = reach
-                    .max((at(i + 1, j + 1) - at(i, j)).norm())
-                    .max((at(i + 1, j) - at(i, j + 1)).norm());
-            }
-        }
+                (at(i + 1, j + 1) - at(i, j))
+                    .norm()
+                    .max((at(i + 1, j) - at(i, j + 1)).norm())
+            })
+            .collect();
+        let reach = diagonals.iter().copied().fold(0.0, Real::max);
+        // The start grid's cubes about a typical cell's size (the median's: a few steep cells
+        // would make the largest's coarse everywhere).
+        let middle = diagonals.len() / 2;
+        let typical = *diagonals.select_nth_unstable_by(middle, Real::total_cmp).1;
         let (lo, hi) = bounds(points.iter().copied());
         let size = (hi - lo).norm().max(Real::MIN_POSITIVE);
         let boxes = surface
@@ -630,14 +742,15 @@ impl<'a> ClosestPoints<'a> {
             .iter()
             .map(|patch| bounds(patch.control_points().iter().copied()))
             .collect::<Vec<_>>();
-        let boxes = BoxTree::new(&boxes);
+        let grid = StartGrid::new(&points, typical, &boxes);
+        let box_tree = BoxTree::new(&boxes);
         let spans_v = (vs.len() - 1) / SAMPLES_PER_SPAN;
         let (creases_u, creases_v) = (creases(surface.knots_u()), creases(surface.knots_v()));
         let basis = [
             SpanPolynomials::new(surface.knots_u()),
             SpanPolynomials::new(surface.knots_v()),
         ];
-        let tangents = us
+        let derivatives = us
             .iter()
             .flat_map(|&u| vs.iter().map(move |&v| (u, v)))
             .map(|(u, v)| {
@@ -646,20 +759,21 @@ impl<'a> ClosestPoints<'a> {
                     v: piece_of(&creases_v, surface.domain_v(), v),
                 };
                 let d = second_order(&surface, [&basis[0], &basis[1]], u, v, &piece);
-                [d[1], d[2]]
+                [d[1], d[2], d[3], d[4], d[5]]
             })
             .collect();
         ClosestPoints {
             surface,
-            boxes,
+            boxes: box_tree,
+            span_boxes: boxes,
             spans_v,
             creases_u,
             creases_v,
             us,
             vs,
-            grid: StartGrid::new(&points, reach),
+            grid,
             tree: KdTree::new(points),
-            tangents,
+            derivatives,
             // A cell bulges by little more than its diagonal's tenth for the spans sampled.
             reach: 1.1 * reach,
             tolerance: 1e-12 * size,
@@ -719,14 +833,26 @@ impl<'a> ClosestPoints<'a> {
     /// answer has been in), keeping the nearest answer.
     /// `scratch` holds lists between queries (their contents do not matter).
     fn search(&self, query: &Point3<Real>, scratch: &mut Scratch) -> ClosestPoint {
-        let nearest = self.grid.start(query).unwrap_or_else(|| self.tree.nearest(query));
+        let cube = self.grid.cube(query);
+        let nearest = match cube.and_then(|c| self.grid.sample_of(c)) {
+            Some(k) => self.descend(query, k),
+            None => self.tree.nearest(query),
+        };
         let (cell, sample) = self.sample(nearest);
         let piece = self.piece(sample[0], sample[1]);
         let start = self.first_step(query, nearest, &piece);
         let mut best = self.newton(query, start, &piece);
         let Scratch { spans, tried } = scratch;
         spans.clear();
-        self.boxes.within(query, best.distance * best.distance, spans);
+        let r2 = best.distance * best.distance;
+        match cube.and_then(|c| self.grid.near(c, best.distance)) {
+            Some(near) => spans.extend(
+                near.iter()
+                    .map(|&k| k as usize)
+                    .filter(|&k| box_distance2(&self.span_boxes[k].0, &self.span_boxes[k].1, query) < r2),
+            ),
+            None => self.boxes.within(query, r2, spans),
+        }
         tried.clear();
         tried.extend([
             self.span_of(cell),
@@ -778,31 +904,68 @@ impl<'a> ClosestPoints<'a> {
         best
     }
 
-    /// Newton's first step from sample `index` toward `query`, taken from the sample's stored
-    /// point and tangents (a Gauss–Newton step, which needs no evaluation), held within a
-    /// sample spacing of the sample and inside `piece`; the sample itself where the tangents
-    /// do not determine a step.
+    /// From sample `index`, the sample grid's neighbours (the eight around) walked to while
+    /// one comes nearer `query`: a sample where none does, at most [`WALK`] moves away.
+    fn descend(&self, query: &Point3<Real>, index: usize) -> usize {
+        let (nu, nv) = (self.us.len(), self.vs.len());
+        let points = &self.tree.points;
+        let (mut i, mut j) = (index / nv, index % nv);
+        let mut best = (points[index] - query).norm_squared();
+        for _ in 0..WALK {
+            let mut next = None;
+            for a in i.saturating_sub(1)..=(i + 1).min(nu - 1) {
+                for b in j.saturating_sub(1)..=(j + 1).min(nv - 1) {
+                    let d = (points[a * nv + b] - query).norm_squared();
+                    if d < best {
+                        best = d;
+                        next = Some((a, b));
+                    }
+                }
+            }
+            let Some(at) = next else { break };
+            (i, j) = at;
+        }
+        i * nv + j
+    }
+
+    /// Newton's start from sample `index` toward `query`: the closest point of the surface's
+    /// second-order expansion about the sample (its stored derivatives, so no evaluation),
+    /// found by up to [`MODEL_STEPS`] Newton steps on the expansion, held within a sample
+    /// spacing of the sample and inside `piece`; the sample itself where the expansion does
+    /// not determine a step.
     fn first_step(&self, query: &Point3<Real>, index: usize, piece: &Piece) -> [Real; 2] {
         let ((i, j), [u, v]) = self.sample(index);
-        let [fu, fv] = self.tangents[index];
-        let r = self.tree.points[index] - query;
-        let (a, b, c) = (fu.dot(&fu), fu.dot(&fv), fv.dot(&fv));
-        let g = [r.dot(&fu), r.dot(&fv)];
-        let det = a * c - b * b;
-        if !(a > 0.0 && det > 1e-14 * a * c) {
-            return [u, v];
-        }
+        let [fu, fv, fuu, fuv, fvv] = self.derivatives[index];
+        let r0 = self.tree.points[index] - query;
         let spacing = |grid: &[Real], k: usize| {
             let k = k.min(grid.len() - 2);
             grid[k + 1] - grid[k]
         };
         let (hu, hv) = (spacing(&self.us, i), spacing(&self.vs, j));
-        let du = (-(c * g[0] - b * g[1]) / det).clamp(-hu, hu);
-        let dv = (-(a * g[1] - b * g[0]) / det).clamp(-hv, hv);
-        [
-            (u + du).clamp(piece.u.0, piece.u.1),
-            (v + dv).clamp(piece.v.0, piece.v.1),
-        ]
+        // The step's bounds: a sample spacing, and the piece.
+        let (lu, uu) = ((piece.u.0 - u).max(-hu), (piece.u.1 - u).min(hu));
+        let (lv, uv) = ((piece.v.0 - v).max(-hv), (piece.v.1 - v).min(hv));
+        let (mut du, mut dv) = (0.0, 0.0);
+        for _ in 0..MODEL_STEPS {
+            let r = r0 + fu * du + fv * dv + fuu * (0.5 * du * du) + fuv * (du * dv) + fvv * (0.5 * dv * dv);
+            let (tu, tv) = (fu + fuu * du + fuv * dv, fv + fuv * du + fvv * dv);
+            let g = [r.dot(&tu), r.dot(&tv)];
+            let (a, b, c) = (tu.dot(&tu), tu.dot(&tv), tv.dot(&tv));
+            // One division: its latency is most of a step's.
+            let solve = |(a, b, c): (Real, Real, Real)| -> Option<[Real; 2]> {
+                let det = a * c - b * b;
+                (a > 0.0 && det > 1e-14 * a * c).then(|| {
+                    let inverse = det.recip();
+                    [-(c * g[0] - b * g[1]) * inverse, -(a * g[1] - b * g[0]) * inverse]
+                })
+            };
+            let full = (a + r.dot(&fuu), b + r.dot(&fuv), c + r.dot(&fvv));
+            let Some([su, sv]) = solve(full).or_else(|| solve((a, b, c))) else {
+                break;
+            };
+            (du, dv) = ((du + su).clamp(lu, uu), (dv + sv).clamp(lv, uv));
+        }
+        [u + du, v + dv]
     }
 
     /// [`ClosestPoints::closest`] for every query, in parallel (rayon).
@@ -833,6 +996,7 @@ impl<'a> ClosestPoints<'a> {
         let mut d = second_order(s, [&self.basis[0], &self.basis[1]], u, v, piece);
         let mut r = d[0] - query.coords;
         let mut f = r.norm_squared();
+        let query_norm = query.coords.norm();
         for _ in 0..MAX_STEPS {
             let (fu, fv) = (d[1], d[2]);
             let g = [r.dot(&fu), r.dot(&fv)];
@@ -841,14 +1005,13 @@ impl<'a> ClosestPoints<'a> {
             let fixed_u = (u <= u0 && g[0] > 0.0) || (u >= u1 && g[0] < 0.0);
             let fixed_v = (v <= v0 && g[1] > 0.0) || (v >= v1 && g[1] < 0.0);
             // Zero cosine: the residual is perpendicular to the surface along every free
-            // direction (or vanishes).
-            let rn = r.norm();
-            let flat_u = fixed_u || g[0].abs() <= 1e-12 * rn * fu.norm();
-            let flat_v = fixed_v || g[1].abs() <= 1e-12 * rn * fv.norm();
+            // direction (or vanishes): `|r·Fᵤ| ≤ 10⁻¹² |r| |Fᵤ|`, compared squared.
+            let (a, b, c) = (fu.dot(&fu), fu.dot(&fv), fv.dot(&fv));
+            let flat_u = fixed_u || g[0] * g[0] <= 1e-24 * f * a;
+            let flat_v = fixed_v || g[1] * g[1] <= 1e-24 * f * c;
             if flat_u && flat_v {
                 break;
             }
-            let (a, b, c) = (fu.dot(&fu), fu.dot(&fv), fv.dot(&fv));
             let full = (a + r.dot(&d[3]), b + r.dot(&d[4]), c + r.dot(&d[5]));
             let solve = |(a, b, c): (Real, Real, Real)| -> Option<[Real; 2]> {
                 match (fixed_u, fixed_v) {
@@ -856,14 +1019,20 @@ impl<'a> ClosestPoints<'a> {
                     (false, true) => (a > 0.0).then(|| [-g[0] / a, 0.0]),
                     _ => {
                         let det = a * c - b * b;
-                        (a > 0.0 && det > 1e-14 * a * c)
-                            .then(|| [-(c * g[0] - b * g[1]) / det, -(a * g[1] - b * g[0]) / det])
+                        (a > 0.0 && det > 1e-14 * a * c).then(|| {
+                            let inverse = det.recip();
+                            [-(c * g[0] - b * g[1]) * inverse, -(a * g[1] - b * g[0]) * inverse]
+                        })
                     }
                 }
             };
             let Some(mut step) = solve(full).or_else(|| solve((a, b, c))) else {
                 break;
             };
+            // Within rounding of no worse: near the answer `f` stops resolving the steps that
+            // still straighten the residual to the normal (`r = F − P` carries the rounding of
+            // coordinates of size `|P|`, `f = |r|²` twice `|r|` times that).
+            let slack = 16.0 * Real::EPSILON * f.sqrt() * (query_norm + d[0].norm());
             // Damped: halve the step until it does not move away (at most 30 halvings).
             let mut accepted = false;
             for _ in 0..30 {
@@ -871,14 +1040,10 @@ impl<'a> ClosestPoints<'a> {
                 let nd = second_order(s, [&self.basis[0], &self.basis[1]], nu, nv, piece);
                 let nr = nd[0] - query.coords;
                 let nf = nr.norm_squared();
-                // Within rounding of no worse: near the answer `f` stops resolving the steps
-                // that still straighten the residual to the normal (`r = F − P` carries the
-                // rounding of coordinates of size `|P|`, `f = |r|²` twice `|r|` times that).
-                let slack = 16.0 * Real::EPSILON * r.norm() * (query.coords.norm() + d[0].norm());
                 if nf <= f + slack {
-                    let moved = (nd[0] - d[0]).norm();
+                    let moved2 = (nd[0] - d[0]).norm_squared();
                     (u, v, d, r, f) = (nu, nv, nd, nr, nf);
-                    accepted = moved > self.tolerance;
+                    accepted = moved2 > self.tolerance * self.tolerance;
                     break;
                 }
                 step = [0.5 * step[0], 0.5 * step[1]];
@@ -993,7 +1158,7 @@ mod tests {
                 )
             })
             .collect();
-        let grid = StartGrid::new(&points, 0.2);
+        let grid = StartGrid::new(&points, 0.2, &[]);
         let side = 1.0 / grid.inverse;
         assert!(grid.cubes.len() <= CUBES_PER_SAMPLE * points.len());
         let cube_of = |p: &Point3<Real>| {
@@ -1022,6 +1187,62 @@ mod tests {
                 .flatten();
             assert_eq!(grid.start(&q), expected, "query {q}");
         }
+    }
+
+    /// A cube's list of near boxes holds every box within the margin of any point in the
+    /// cube (brute force over random boxes and queries, the distances up to the margin), in
+    /// ascending order; and there is no list where the distance exceeds the margin.
+    #[test]
+    fn a_cubes_near_boxes_hold_every_box_within_the_margin() {
+        let mut rng = Lcg(11);
+        let points: Vec<Point3<Real>> = (0..400)
+            .map(|_| {
+                Point3::new(
+                    rng.uniform(0.0, 4.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(0.0, 0.5),
+                )
+            })
+            .collect();
+        let boxes: Vec<(Point3<Real>, Point3<Real>)> = (0..60)
+            .map(|_| {
+                let lo = Point3::new(
+                    rng.uniform(-0.5, 4.0),
+                    rng.uniform(-1.5, 1.0),
+                    rng.uniform(-0.2, 0.5),
+                );
+                (
+                    lo,
+                    lo + Vector3::new(
+                        rng.uniform(0.0, 0.6),
+                        rng.uniform(0.0, 0.6),
+                        rng.uniform(0.0, 0.2),
+                    ),
+                )
+            })
+            .collect();
+        let grid = StartGrid::new(&points, 0.25, &boxes);
+        assert!(grid.margin > 0.0, "the lists were made");
+        let mut listed = 0;
+        for _ in 0..3000 {
+            let q = Point3::new(
+                rng.uniform(-0.5, 4.5),
+                rng.uniform(-1.5, 1.5),
+                rng.uniform(-0.2, 0.7),
+            );
+            let Some(cube) = grid.cube(&q) else { continue };
+            assert!(grid.near(cube, 1.001 * grid.margin).is_none());
+            let r = rng.uniform(0.0, grid.margin);
+            let near = grid.near(cube, r).unwrap();
+            assert!(near.windows(2).all(|w| w[0] < w[1]));
+            for (k, (lo, hi)) in boxes.iter().enumerate() {
+                if box_distance2(lo, hi, &q) < r * r {
+                    assert!(near.contains(&(k as u32)), "box {k} within {r} of {q}");
+                    listed += 1;
+                }
+            }
+        }
+        assert!(listed > 300, "the queries came near boxes ({listed})");
     }
 
     /// The fixed-degree derivatives are the general form's, bit for bit (the same sums in the

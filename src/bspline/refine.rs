@@ -277,11 +277,39 @@ impl BSplineSurface {
                 .collect();
             full = full.refine_knots(direction, &inserts)?;
         }
-        let mut patches = Vec::with_capacity((us.len() - 1) * (vs.len() - 1));
-        for u in us.windows(2) {
-            let strip = full.restricted(Direction::U, u[0], u[1])?;
-            for v in vs.windows(2) {
-                patches.push(strip.restricted(Direction::V, v[0], v[1])?);
+        // Each span `[a, b]` now has both ends at multiplicity ≥ the degree, so its patch is
+        // the `(p + 1)`-wide slice of the grid that [`BSplineSurface::restricted`] would keep
+        // (its `first`), over the Bézier knots `[a, …, a, b, …, b]`: taken directly, without
+        // restricting a copy of the grid for every span (cubic in the grid's side).
+        let slices =
+            |direction: Direction, breaks: &[Real]| -> Result<Vec<(usize, KnotVector)>, BSplineError> {
+                let knots = full.knots_in(direction);
+                let (p, u) = (knots.degree(), knots.knots());
+                breaks
+                    .windows(2)
+                    .map(|w| {
+                        let s = u.partition_point(|&k| k < w[0]);
+                        let first = s + multiplicity(u, w[0]) - 1 - p;
+                        let mut bezier = vec![w[0]; p + 1];
+                        bezier.extend(std::iter::repeat_n(w[1], p + 1));
+                        Ok((first, KnotVector::new(p, bezier)?))
+                    })
+                    .collect()
+            };
+        let (rows, cols) = (slices(Direction::U, &us)?, slices(Direction::V, &vs)?);
+        let (p, q) = (full.degree_u(), full.degree_v());
+        let (grid, width) = (full.control_points(), full.cols());
+        let mut patches = Vec::with_capacity(rows.len() * cols.len());
+        for (i, ku) in &rows {
+            for (j, kv) in &cols {
+                let points = (0..=p)
+                    .flat_map(|r| {
+                        grid[(i + r) * width + j..=(i + r) * width + j + q]
+                            .iter()
+                            .copied()
+                    })
+                    .collect();
+                patches.push(BSplineSurface::new(ku.clone(), kv.clone(), p + 1, q + 1, points)?);
             }
         }
         Ok(patches)

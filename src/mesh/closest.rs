@@ -271,7 +271,13 @@ pub(crate) fn in_morton_order<T: Send>(
         .collect()
 }
 
-/// The indices of `points` sorted by their Morton code over the points' bounding box.
+/// Bits of a Morton cell index per axis: 1024 cells a side of the points' box, finer than
+/// the caches can tell apart, and three axes' fit in the upper half of a `u64` whose lower
+/// half holds the point's index.
+const MORTON_BITS: u32 = 10;
+
+/// The indices of `points` sorted by their Morton code over the points' bounding box (equal
+/// codes in index order).
 fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
     let mut lo = Vector3::repeat(Real::INFINITY);
     let mut hi = Vector3::repeat(Real::NEG_INFINITY);
@@ -279,23 +285,46 @@ fn morton_order(points: &[Point3<Real>]) -> Vec<u32> {
         lo = lo.inf(&p.coords);
         hi = hi.sup(&p.coords);
     }
-    let scale = (hi - lo).map(|e| if e > 0.0 { 2_097_151.0 / e } else { 0.0 });
-    let mut keyed: Vec<(u64, u32)> = points
+    let top = ((1u32 << MORTON_BITS) - 1) as Real;
+    let scale = (hi - lo).map(|e| if e > 0.0 { top / e } else { 0.0 });
+    let mut keyed: Vec<u64> = points
         .iter()
         .enumerate()
         .map(|(k, p)| {
             let cell = |c: usize| {
-                let x = ((p[c] - lo[c]) * scale[c]).clamp(0.0, 2_097_151.0);
+                let x = ((p[c] - lo[c]) * scale[c]).clamp(0.0, top);
                 if x.is_finite() { x as u64 } else { 0 }
             };
-            (
-                spread(cell(0)) | spread(cell(1)) << 1 | spread(cell(2)) << 2,
-                k as u32,
-            )
+            (spread(cell(0)) | spread(cell(1)) << 1 | spread(cell(2)) << 2) << 32 | k as u64
         })
         .collect();
-    keyed.sort_unstable();
-    keyed.into_iter().map(|(_, k)| k).collect()
+    radix_sort_codes(&mut keyed);
+    keyed.into_iter().map(|x| x as u32).collect()
+}
+
+/// Sorts `keys` by their upper 32 bits, stably (so by the lower bits among equals when they
+/// come in that order): least-significant-digit radix sort, `MORTON_BITS` bits a pass over
+/// the `3 · MORTON_BITS` bits a code has (a comparison sort of the keys was a tenth of a
+/// batch of point inversions).
+fn radix_sort_codes(keys: &mut Vec<u64>) {
+    let mut other = vec![0u64; keys.len()];
+    let mask = (1u64 << MORTON_BITS) - 1;
+    for pass in 0..3 {
+        let shift = 32 + pass * MORTON_BITS;
+        let mut starts = vec![0usize; (1 << MORTON_BITS) + 1];
+        for &k in keys.iter() {
+            starts[((k >> shift) & mask) as usize + 1] += 1;
+        }
+        for d in 0..1 << MORTON_BITS {
+            starts[d + 1] += starts[d];
+        }
+        for &k in keys.iter() {
+            let d = ((k >> shift) & mask) as usize;
+            other[starts[d]] = k;
+            starts[d] += 1;
+        }
+        std::mem::swap(keys, &mut other);
+    }
 }
 
 fn box_distance_squared(node: &Node, p: &Point3<Real>) -> Real {
@@ -352,4 +381,48 @@ fn build(
     nodes[index as usize].start = right_index;
     nodes[index as usize].count = 0;
     index
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The radix sort orders by the code and keeps equal codes in index order: the same as a
+    /// comparison sort of the whole keys, which it must match exactly.
+    #[test]
+    fn a_radix_sort_orders_keys_like_a_comparison_sort() {
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        // Few distinct codes (many ties) and codes over all 30 bits.
+        for spread_bits in [4u32, 30] {
+            let mut keys: Vec<u64> = (0..5000u64)
+                .map(|k| (next() & ((1 << spread_bits) - 1)) << 32 | k)
+                .collect();
+            let mut expected = keys.clone();
+            expected.sort_unstable();
+            radix_sort_codes(&mut keys);
+            assert_eq!(keys, expected);
+        }
+    }
+
+    /// Points along a diagonal of their box (every coordinate rising together, so every cell
+    /// index and so the code) come out in order along it, each index once.
+    #[test]
+    fn a_morton_order_is_a_permutation_that_follows_a_line() {
+        let points: Vec<Point3<Real>> = (0..1000)
+            .rev()
+            .map(|k| Point3::new(k as Real, 2.0 * k as Real, 0.5 * k as Real))
+            .collect();
+        let order = morton_order(&points);
+        let xs: Vec<Real> = order.iter().map(|&k| points[k as usize].x).collect();
+        let mut sorted = order.clone();
+        sorted.sort_unstable();
+        assert_eq!(sorted, (0..1000).collect::<Vec<u32>>());
+        assert!(xs.windows(2).all(|w| w[0] <= w[1]));
+    }
 }
