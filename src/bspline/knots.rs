@@ -254,6 +254,18 @@ impl KnotVector {
         self.inverse_uniform_width.is_some()
     }
 
+    /// For uniform knots, `(start, 1/h, last span)`: the span of a `u` in the domain is then
+    /// `min(p + ⌊(u − start)/h⌋, last span)` by arithmetic alone. That agrees with
+    /// [`KnotVector::span`] except for parameters within rounding of a knot, where it may give
+    /// the neighbouring span; uniform knots are simple inside the domain, so the two spans'
+    /// polynomials agree there in value and `p − 1` derivatives, and the points differ by
+    /// rounding only. `None` for non-uniform knots.
+    #[inline]
+    pub(crate) fn uniform_spans(&self) -> Option<(Real, Real, usize)> {
+        self.inverse_uniform_width
+            .map(|inverse| (self.start, inverse, self.last_span))
+    }
+
     /// Whether the spline interpolates its end control points: the first and last
     /// `degree + 1` knots are equal.
     pub fn is_clamped(&self) -> bool {
