@@ -20,16 +20,17 @@
 //! * then `F = Σᵦ N_β(v) sᵦ`: three products, the twelve lanes lined up into three sums by
 //!   whole-register shuffles.
 //!
-//! Four points are written out side by side in the loop, so that their chains of dependent
-//! operations (about 60 cycles a point from the parameter's load to the store) overlap.
+//! Eight points are taken at a time in the loop ([`SIDE_BY_SIDE`]), their spans first, so
+//! that their chains of dependent operations (about 60 cycles a point from the parameter's
+//! load to the store) overlap.
 //!
 //! Measured against the scalar path (`cargo bench --bench bspline -- scattered`, one core, a
 //! 32 × 32 grid, 10⁶ random parameters, the same run): `eval_many` 37.8 M points/s and
 //! `eval_many_into` 36.0 M against `eval` one by one's 23.6 M at first. Then, against that
 //! code's bench binary run alternately with this one's (the machine's speed drifts by a
-//! fifth between runs): 44.5–48.2 M → 78.6–79.1 M points/s (`eval_many_into`, three pairs of
-//! runs): spans by arithmetic 46.7 → 67.2 M, two chains of rows +8%, two points side by side
-//! +3%, four +10%. Variants measured and dropped: checking each chunk's parameters just
+//! fifth between runs): 48.1–52.8 M → 99.7–102.7 M points/s (`eval_many_into`, three pairs
+//! of runs; `eval` one by one 33.8 M): spans by arithmetic 46.7 → 67.2 M, two chains of rows
+//! +8%, two points side by side +3%, four +10%, eight +5–14% (sixteen no better). Variants measured and dropped: checking each chunk's parameters just
 //! before evaluating it instead of all of them first (2–10% slower, though it reads them
 //! once); the lanes summed one by one rather than by shuffles (the same speed); before the
 //! spans by arithmetic, each 30–37 M points/s: the recurrence run for four points side by
@@ -175,23 +176,27 @@ impl<S: Spans> pulp::NullaryFnOnce for EvalInto<'_, '_, S> {
 
     #[inline(always)]
     fn call(self) {
-        let (pairs, rest) = self.params.as_chunks::<4>();
-        let (out_pairs, out_rest) = self.out.as_chunks_mut::<4>();
-        for (o, &[[u0, v0], [u1, v1], [u2, v2], [u3, v3]]) in out_pairs.iter_mut().zip(pairs) {
-            let (s0, s1) = (self.spans.of(u0, v0), self.spans.of(u1, v1));
-            let (s2, s3) = (self.spans.of(u2, v2), self.spans.of(u3, v3));
-            *o = [
-                self.wide.point(s0, u0, v0),
-                self.wide.point(s1, u1, v1),
-                self.wide.point(s2, u2, v2),
-                self.wide.point(s3, u3, v3),
-            ];
+        // `SIDE_BY_SIDE` points' spans first, then their points: each point's chain of
+        // dependent operations overlaps the others'.
+        let (groups, rest) = self.params.as_chunks::<SIDE_BY_SIDE>();
+        let (out_groups, out_rest) = self.out.as_chunks_mut::<SIDE_BY_SIDE>();
+        for (out, params) in out_groups.iter_mut().zip(groups) {
+            let mut spans = [[0; 2]; SIDE_BY_SIDE];
+            for (s, &[u, v]) in spans.iter_mut().zip(params) {
+                *s = self.spans.of(u, v);
+            }
+            for ((o, &s), &[u, v]) in out.iter_mut().zip(&spans).zip(params) {
+                *o = self.wide.point(s, u, v);
+            }
         }
         for (o, &[u, v]) in out_rest.iter_mut().zip(rest) {
             *o = self.wide.point(self.spans.of(u, v), u, v);
         }
     }
 }
+
+/// The points [`EvalInto`]'s loop takes at a time (see the module's docs for the measures).
+const SIDE_BY_SIDE: usize = 8;
 
 /// How a point's knot spans are found: a type for each way, so that [`EvalInto`]'s loop is
 /// compiled for each without a branch inside.
