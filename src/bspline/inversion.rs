@@ -1144,20 +1144,25 @@ mod tests {
         assert!(exact > 400, "{exact} of 500 steps landed on the foot");
     }
 
+    /// `n` points uniform in the slab `[0, 4] × [−1, 1] × [0, depth]`.
+    fn slab(rng: &mut Lcg, n: usize, depth: Real) -> Vec<Point3<Real>> {
+        (0..n)
+            .map(|_| {
+                Point3::new(
+                    rng.uniform(0.0, 4.0),
+                    rng.uniform(-1.0, 1.0),
+                    rng.uniform(0.0, depth),
+                )
+            })
+            .collect()
+    }
+
     /// The start grid gives, for a query in a cube, the sample of that cube nearest its centre
     /// (brute force over the samples), and nothing for an empty cube or outside the box.
     #[test]
     fn the_start_grid_holds_each_cubes_sample_nearest_its_centre() {
         let mut rng = Lcg(8);
-        let points: Vec<Point3<Real>> = (0..300)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(0.0, 4.0),
-                    rng.uniform(-1.0, 1.0),
-                    rng.uniform(0.0, 0.3),
-                )
-            })
-            .collect();
+        let points = slab(&mut rng, 300, 0.3);
         let grid = StartGrid::new(&points, 0.2, &[]);
         let side = 1.0 / grid.inverse;
         assert!(grid.cubes.len() <= CUBES_PER_SAMPLE * points.len());
@@ -1195,15 +1200,7 @@ mod tests {
     #[test]
     fn a_cubes_near_boxes_hold_every_box_within_the_margin() {
         let mut rng = Lcg(11);
-        let points: Vec<Point3<Real>> = (0..400)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(0.0, 4.0),
-                    rng.uniform(-1.0, 1.0),
-                    rng.uniform(0.0, 0.5),
-                )
-            })
-            .collect();
+        let points = slab(&mut rng, 400, 0.5);
         let boxes: Vec<(Point3<Real>, Point3<Real>)> = (0..60)
             .map(|_| {
                 let lo = Point3::new(

@@ -311,6 +311,32 @@ mod tests {
     use super::*;
     use crate::random::Lcg;
 
+    /// `n` control points with coordinates uniform in [−5, 5].
+    fn random_grid(rng: &mut Lcg, n: usize) -> Vec<Point3<Real>> {
+        (0..n)
+            .map(|_| {
+                Point3::new(
+                    rng.uniform(-5.0, 5.0),
+                    rng.uniform(-5.0, 5.0),
+                    rng.uniform(-5.0, 5.0),
+                )
+            })
+            .collect()
+    }
+
+    /// `wide` at `params` against the surface's own `eval`, to 1e-12.
+    fn agrees_with_eval(surface: &BSplineSurface, wide: &Bicubic, params: &[[Real; 2]]) {
+        let mut out = vec![Point3::origin(); params.len()];
+        wide.eval_into(params, &mut out);
+        for (p, &[u, v]) in out.iter().zip(params) {
+            let expected = surface.eval(u, v).unwrap();
+            assert!(
+                (p - expected).norm() <= 1e-12,
+                "({u}, {v}): {p} against {expected}"
+            );
+        }
+    }
+
     /// Uniform knots take the spans by arithmetic ([`Uniform`]): against `eval` at random
     /// parameters, at every knot, and one rounding step either side of every knot (where the
     /// arithmetic may pick the neighbouring span), on a domain that does not start at 0.
@@ -321,15 +347,7 @@ mod tests {
         };
         let mut rng = Lcg(11);
         let (rows, cols) = (13, 10);
-        let grid = (0..rows * cols)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                )
-            })
-            .collect();
+        let grid = random_grid(&mut rng, rows * cols);
         let knots_u = crate::bspline::KnotVector::clamped_uniform(3, rows, -0.3, 0.7).unwrap();
         let knots_v = crate::bspline::KnotVector::clamped_uniform(3, cols, 2.0, 9.0).unwrap();
         assert!(knots_u.is_uniform() && knots_v.is_uniform());
@@ -353,15 +371,7 @@ mod tests {
                 }
             }
         }
-        let mut out = vec![Point3::origin(); params.len()];
-        wide.eval_into(&params, &mut out);
-        for (p, &[u, v]) in out.iter().zip(&params) {
-            let expected = surface.eval(u, v).unwrap();
-            assert!(
-                (p - expected).norm() <= 1e-12,
-                "({u}, {v}): {p} against {expected}"
-            );
-        }
+        agrees_with_eval(&surface, &wide, &params);
     }
 
     /// `floor_or_below` is the floor off whole numbers and the floor or one less on them.
@@ -389,28 +399,12 @@ mod tests {
             crate::bspline::basis::clamped(3, (0..n - 4).map(|_| rng.uniform(0.0, 1.0)).collect())
         };
         let (rows, cols) = (9, 7);
-        let grid = (0..rows * cols)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                )
-            })
-            .collect();
+        let grid = random_grid(&mut rng, rows * cols);
         let surface =
             BSplineSurface::new(knots(&mut rng, rows), knots(&mut rng, cols), rows, cols, grid).unwrap();
         let wide = Bicubic::new(&surface).unwrap();
         let mut params: Vec<[Real; 2]> = (0..1001).map(|_| [rng.next(), rng.next()]).collect();
         params.extend([[0.0, 0.0], [1.0, 1.0], [0.0, 1.0], [1.0, 0.5], [0.5, 0.0]]);
-        let mut out = vec![Point3::origin(); params.len()];
-        wide.eval_into(&params, &mut out);
-        for (p, &[u, v]) in out.iter().zip(&params) {
-            let expected = surface.eval(u, v).unwrap();
-            assert!(
-                (p - expected).norm() <= 1e-12,
-                "({u}, {v}): {p} against {expected}"
-            );
-        }
+        agrees_with_eval(&surface, &wide, &params);
     }
 }
