@@ -40,12 +40,16 @@
 //! evaluations a query 4.4 → 3.3, Newton's first move about 0.2 → 1e-4 of a sample cell)
 //! 1.70 → 1.72 M; the per-cube box lists (the tree's search was a fifth of the time) 1.94 M;
 //! Newton's tests on squares with one reciprocal a step 2.04 M; the Morton order's radix sort
-//! 2.17 M. On a 128 × 128 bicubic, 1.31 → 1.70 M; on 512 × 512, 0.98 M either way (the
-//! queries' cache misses dominate). Left alone: the build, 3.0 ms for 32 × 32 and 1.3 s for
-//! 512 × 512 (2.3 M samples with their derivatives). A last step taken from the second-order
-//! expansion, without evaluating, was measured and dropped: where the tangents are short, a
-//! step short in space is long in the parameters, and the property test found the
-//! expansion's point and the stationarity off by more than their tolerances.
+//! 2.17 M. Then a query's functions (the search, the walk, Newton, the derivatives, the span
+//! and piece lookups, the trees' searches) marked to be inlined into one loop: 1.77–2.01 →
+//! 2.09–2.17 M in five pairs of alternating runs of the two builds (the same loop compiled for
+//! AVX2 under `pulp`: 0–7% more, within the machine's drift, and dropped). On a 128 × 128
+//! bicubic the changes before the inlining took 1.31 → 1.70 M; on 512 × 512, 0.98 M either
+//! way (the queries' cache misses dominate). Left alone: the build, 3.0 ms for 32 × 32 and
+//! 1.3 s for 512 × 512 (2.3 M samples with their derivatives). A last step taken from the
+//! second-order expansion, without evaluating, was measured and dropped: where the tangents
+//! are short, a step short in space is long in the parameters, and the property test found
+//! the expansion's point and the stationarity off by more than their tolerances.
 
 use std::borrow::Cow;
 
@@ -73,6 +77,7 @@ const INSIDE: Real = 1e-9;
 
 /// `t`, moved below `hi` by [`INSIDE`] of `[lo, hi]`'s width when it is nearer `hi` than that,
 /// so that it looks up the span or cell below `hi` rather than the one `hi` starts.
+#[inline(always)]
 fn short_of_upper(t: Real, (lo, hi): (Real, Real)) -> Real {
     t.min(hi - INSIDE * (hi - lo))
 }
@@ -94,6 +99,7 @@ pub struct ClosestPoint {
 /// without allocating; on a piece's upper edge, the piece's own (one-sided) derivatives. The
 /// basis functions come from `basis`' polynomials (`u`, `v`): Horner's rule, where A2.3
 /// divides and clears tables (it was a quarter of the inversion's time).
+#[inline(always)]
 fn second_order(
     surface: &BSplineSurface,
     basis: [&SpanPolynomials; 2],
@@ -211,6 +217,7 @@ fn second_order_in<const N: usize>(
 /// The span of `knots` whose polynomial serves `t` in the piece `[lo, hi]`: the usual span,
 /// except on the piece's upper edge `hi` inside the domain, which belongs to the next span
 /// but is reached here from below.
+#[inline(always)]
 fn span_from_within(knots: &super::KnotVector, t: Real, (_, hi): (Real, Real)) -> usize {
     let mut span = knots.span_in_domain(t);
     if t >= hi && hi < knots.domain().1 {
@@ -247,6 +254,7 @@ fn creases(knots: &super::KnotVector) -> Vec<Real> {
 
 /// The piece `[lo, hi]` of `(t0, t1)` cut at `creases` that holds `t` (a crease starts the
 /// piece above it).
+#[inline(always)]
 fn piece_of(creases: &[Real], (t0, t1): (Real, Real), t: Real) -> (Real, Real) {
     let k = creases.partition_point(|&c| c <= t);
     let lo = if k == 0 { t0 } else { creases[k - 1] };
@@ -323,6 +331,7 @@ impl KdTree {
     }
 
     /// The index of the point nearest `query` (the first in leaf order among equals).
+    #[inline(always)]
     fn nearest(&self, query: &Point3<Real>) -> usize {
         let mut best = (Real::INFINITY, 0usize);
         // Subtrees still to visit with the squared distance from the query to their side of
@@ -493,6 +502,7 @@ impl StartGrid {
     }
 
     /// The cube that holds `query`, if one does.
+    #[inline(always)]
     fn cube(&self, query: &Point3<Real>) -> Option<usize> {
         let mut cube = 0;
         for a in (0..3).rev() {
@@ -513,6 +523,7 @@ impl StartGrid {
     }
 
     /// The sample of cube `cube`, if it holds one.
+    #[inline(always)]
     fn sample_of(&self, cube: usize) -> Option<usize> {
         let k = self.cubes[cube];
         (k != u32::MAX).then_some(k as usize)
@@ -520,6 +531,7 @@ impl StartGrid {
 
     /// The boxes within `distance` of a point in `cube`, among others, ascending; `None` where
     /// the distance exceeds the lists' margin.
+    #[inline(always)]
     fn near(&self, cube: usize, distance: Real) -> Option<&[u32]> {
         (distance <= self.margin)
             .then(|| &self.near[self.offsets[cube] as usize..self.offsets[cube + 1] as usize])
@@ -551,6 +563,7 @@ fn bounds(points: impl Iterator<Item = Point3<Real>>) -> (Point3<Real>, Point3<R
     )
 }
 
+#[inline(always)]
 fn box_distance2(lo: &Point3<Real>, hi: &Point3<Real>, p: &Point3<Real>) -> Real {
     (lo - p).sup(&(p - hi)).sup(&Vector3::zeros()).norm_squared()
 }
@@ -590,6 +603,7 @@ impl BoxTree {
     }
 
     /// Every box whose distance to `p` is below `sqrt(r2)`, appended to `out`.
+    #[inline(always)]
     fn within(&self, p: &Point3<Real>, r2: Real, out: &mut Vec<usize>) {
         // Depth-first: at most one pending sibling a level, and median splits keep the depth
         // at ⌈log₂ boxes⌉ + 1.
@@ -794,18 +808,21 @@ impl<'a> ClosestPoints<'a> {
     }
 
     /// The sample `index`'s grid cell `(i, j)` and parameters.
+    #[inline(always)]
     fn sample(&self, index: usize) -> ((usize, usize), [Real; 2]) {
         let (i, j) = (index / self.vs.len(), index % self.vs.len());
         ((i, j), [self.us[i], self.vs[j]])
     }
 
     /// The grid cell of parameters `(u, v)`.
+    #[inline(always)]
     fn cell(&self, u: Real, v: Real) -> (usize, usize) {
         let at = |grid: &[Real], t: Real| grid.partition_point(|&g| g <= t).saturating_sub(1);
         (at(&self.us, u), at(&self.vs, v))
     }
 
     /// The piece that holds `(u, v)`.
+    #[inline(always)]
     fn piece(&self, u: Real, v: Real) -> Piece {
         let s: &BSplineSurface = &self.surface;
         Piece {
@@ -816,11 +833,13 @@ impl<'a> ClosestPoints<'a> {
 
     /// The knot-span pair of an answer found in `piece` (one on the piece's upper edge belongs
     /// to the span below it, the span of the piece).
+    #[inline(always)]
     fn span_of_answer(&self, found: &ClosestPoint, piece: &Piece) -> usize {
         self.span_of(self.cell(short_of_upper(found.u, piece.u), short_of_upper(found.v, piece.v)))
     }
 
     /// The knot-span pair of sample cell `(i, j)` (the last samples belong to the last span).
+    #[inline(always)]
     fn span_of(&self, (i, j): (usize, usize)) -> usize {
         let spans_u = (self.us.len() - 1) / SAMPLES_PER_SPAN;
         let a = (i / SAMPLES_PER_SPAN).min(spans_u - 1);
@@ -832,6 +851,10 @@ impl<'a> ClosestPoints<'a> {
     /// whose Bézier box comes nearer the query than the answer so far (and that no start or
     /// answer has been in), keeping the nearest answer.
     /// `scratch` holds lists between queries (their contents do not matter).
+    ///
+    /// It and the functions it calls are `#[inline(always)]`, so that a batch's loop is one
+    /// function (16% more queries a second; see the module's docs).
+    #[inline(always)]
     fn search(&self, query: &Point3<Real>, scratch: &mut Scratch) -> ClosestPoint {
         let cube = self.grid.cube(query);
         let nearest = match cube.and_then(|c| self.grid.sample_of(c)) {
@@ -906,6 +929,7 @@ impl<'a> ClosestPoints<'a> {
 
     /// From sample `index`, the sample grid's neighbours (the eight around) walked to while
     /// one comes nearer `query`: a sample where none does, at most [`WALK`] moves away.
+    #[inline(always)]
     fn descend(&self, query: &Point3<Real>, index: usize) -> usize {
         let (nu, nv) = (self.us.len(), self.vs.len());
         let points = &self.tree.points;
@@ -933,6 +957,7 @@ impl<'a> ClosestPoints<'a> {
     /// found by up to [`MODEL_STEPS`] Newton steps on the expansion, held within a sample
     /// spacing of the sample and inside `piece`; the sample itself where the expansion does
     /// not determine a step.
+    #[inline(always)]
     fn first_step(&self, query: &Point3<Real>, index: usize, piece: &Piece) -> [Real; 2] {
         let ((i, j), [u, v]) = self.sample(index);
         let [fu, fv, fuu, fuv, fvv] = self.derivatives[index];
@@ -989,6 +1014,7 @@ impl<'a> ClosestPoints<'a> {
     }
 
     /// Damped Newton from `start` within `piece`, whose edges act as the domain's.
+    #[inline(always)]
     fn newton(&self, query: &Point3<Real>, start: [Real; 2], piece: &Piece) -> ClosestPoint {
         let s: &BSplineSurface = &self.surface;
         let ((u0, u1), (v0, v1)) = (piece.u, piece.v);
