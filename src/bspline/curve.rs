@@ -90,6 +90,21 @@ impl BSplineCurve {
     ///
     /// # Errors
     /// [`BSplineError::ParameterOutOfDomain`] for `u` outside the domain (or NaN).
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let points = (0..5).map(|i| Point3::new(i as f64, ((i * 3) % 4) as f64, 0.5 * i as f64)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// // Clamped: the curve starts and ends at its end control points.
+    /// assert_eq!(curve.eval(0.0)?, Point3::new(0.0, 0.0, 0.0));
+    /// assert_eq!(curve.eval(1.0)?, Point3::new(4.0, 0.0, 2.0));
+    /// assert!(curve.eval(1.5).is_err());
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn eval(&self, u: Real) -> Result<Point3<Real>, BSplineError> {
         self.knots().check_in_domain(Direction::U, u)?;
         self.column.eval(u, 0.0)
@@ -100,6 +115,26 @@ impl BSplineCurve {
     ///
     /// # Errors
     /// As [`BSplineCurve::eval`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let points = (0..5).map(|i| Point3::new(i as f64, ((i * 3) % 4) as f64, 0.5 * i as f64)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// // [C, C′, C″, C‴, C⁗]: the fourth derivative of a cubic is zero.
+    /// let d = curve.derivatives(0.4, 4)?;
+    /// assert_eq!(d.len(), 5);
+    /// assert_eq!(d[0], curve.eval(0.4)?.coords);
+    /// assert_eq!(d[4].norm(), 0.0);
+    /// // C′ against a central difference.
+    /// let h = 1e-6;
+    /// let difference = (curve.eval(0.4 + h)? - curve.eval(0.4 - h)?) / (2.0 * h);
+    /// assert!((d[1] - difference).norm() < 1e-6);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn derivatives(&self, u: Real, order: usize) -> Result<Vec<Vector3<Real>>, BSplineError> {
         self.knots().check_in_domain(Direction::U, u)?;
         let d = self.column.derivatives(u, 0.0, order)?;
@@ -111,6 +146,20 @@ impl BSplineCurve {
     ///
     /// # Errors
     /// As [`BSplineSurface::refine_knots`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let points = (0..5).map(|i| Point3::new(i as f64, ((i * 3) % 4) as f64, 0.5 * i as f64)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// let finer = curve.refine_knots(&[0.1, 0.45, 0.9])?;
+    /// assert_eq!(finer.control_points().len(), 8);
+    /// assert!((finer.eval(0.6)? - curve.eval(0.6)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn refine_knots(&self, values: &[Real]) -> Result<Self, BSplineError> {
         Ok(Self::from_column(self.column.refine_knots(Direction::U, values)?))
     }
@@ -167,6 +216,22 @@ impl BSplineCurve {
     ///
     /// # Errors
     /// As [`BSplineSurface::restricted`].
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineCurve, KnotVector};
+    ///
+    /// let knots = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let points = (0..5).map(|i| Point3::new(i as f64, ((i * 3) % 4) as f64, 0.5 * i as f64)).collect();
+    /// let curve = BSplineCurve::new(knots, points)?;
+    /// let middle = curve.restricted(0.2, 0.7)?;
+    /// assert_eq!(middle.domain(), (0.2, 0.7));
+    /// assert!(middle.knots().is_clamped());
+    /// assert!((middle.eval(0.2)? - curve.eval(0.2)?).norm() < 1e-12);
+    /// assert_eq!(middle.control_points()[0], middle.eval(0.2)?);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn restricted(&self, lo: Real, hi: Real) -> Result<Self, BSplineError> {
         Ok(Self::from_column(self.column.restricted(Direction::U, lo, hi)?))
     }
@@ -224,6 +289,22 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// [`BSplineError::ParameterOutOfDomain`] for `value` outside the `v` domain (or NaN).
+    ///
+    /// # Examples
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// let ku = KnotVector::clamped_uniform(3, 6, 0.0, 1.0)?;
+    /// let kv = KnotVector::clamped_uniform(2, 4, 0.0, 1.0)?;
+    /// let grid = (0..24).map(|i| Point3::new((i / 4) as f64, (i % 4) as f64, ((i * 7) % 5) as f64)).collect();
+    /// let surface = BSplineSurface::new(ku, kv, 6, 4, grid)?;
+    /// // The curve u ↦ F(u, 0.25): the grid's rows blended by the v basis, u's knots.
+    /// let curve = surface.iso_v(0.25)?;
+    /// assert_eq!(curve.control_points().len(), surface.rows());
+    /// assert!((curve.eval(0.6)? - surface.eval(0.6, 0.25)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn iso_v(&self, value: Real) -> Result<BSplineCurve, BSplineError> {
         self.iso(Direction::V, value)
     }

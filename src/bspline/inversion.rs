@@ -997,6 +997,35 @@ impl<'a> ClosestPoints<'a> {
     ///
     /// # Errors
     /// [`BSplineError::NonFiniteSample`] naming the first query that is not finite.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, ClosestPoints, KnotVector};
+    ///
+    /// // The saddle z = (x − 1)(y − 1) over [0, 2]² (bilinear, so exact as a spline).
+    /// let k = KnotVector::clamped_uniform(1, 2, 0.0, 1.0)?;
+    /// let grid = vec![
+    ///     Point3::new(0.0, 0.0, 1.0), Point3::new(0.0, 2.0, -1.0),
+    ///     Point3::new(2.0, 0.0, -1.0), Point3::new(2.0, 2.0, 1.0),
+    /// ];
+    /// let saddle = BSplineSurface::new(k.clone(), k, 2, 2, grid)?;
+    /// let inverter = ClosestPoints::new(&saddle);
+    /// // One answer a query, in the queries' order; each a point on the surface whose
+    /// // distance is the query's from it.
+    /// let queries = [Point3::new(1.0, 1.0, 3.0), Point3::new(0.2, 1.9, -2.0), Point3::new(5.0, 5.0, 5.0)];
+    /// let found = inverter.closest_many(&queries)?;
+    /// assert_eq!(found.len(), 3);
+    /// for (q, c) in queries.iter().zip(&found) {
+    ///     assert!((saddle.eval(c.u, c.v)? - c.point).norm() < 1e-12);
+    ///     assert!(((q - c.point).norm() - c.distance).abs() < 1e-12);
+    /// }
+    /// // Beyond the corner (2, 2, 1), the corner is nearest.
+    /// assert_eq!((found[2].u, found[2].v), (1.0, 1.0));
+    /// assert!(inverter.closest_many(&[Point3::new(f64::NAN, 0.0, 0.0)]).is_err());
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn closest_many(&self, queries: &[Point3<Real>]) -> Result<Vec<ClosestPoint>, BSplineError> {
         if let Some(index) = queries
             .iter()
@@ -1093,6 +1122,24 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// As [`ClosestPoints::closest`].
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// // The plane z = 1 over [0, 1]²: straight down onto it.
+    /// let k = KnotVector::clamped_uniform(1, 2, 0.0, 1.0)?;
+    /// let grid = vec![
+    ///     Point3::new(0.0, 0.0, 1.0), Point3::new(0.0, 1.0, 1.0),
+    ///     Point3::new(1.0, 0.0, 1.0), Point3::new(1.0, 1.0, 1.0),
+    /// ];
+    /// let plane = BSplineSurface::new(k.clone(), k, 2, 2, grid)?;
+    /// let c = plane.closest_point(&Point3::new(0.7, 0.1, -1.0))?;
+    /// assert!((c.u - 0.7).abs() < 1e-12 && (c.v - 0.1).abs() < 1e-12 && (c.distance - 2.0).abs() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn closest_point(&self, query: &Point3<Real>) -> Result<ClosestPoint, BSplineError> {
         ClosestPoints::new(self).closest(query)
     }

@@ -172,6 +172,24 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// As [`BSplineSurface::refine_knots`].
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// // A knot of multiplicity 2 in v: one control point more a row for each insertion.
+    /// let more = surface.insert_knot(Direction::V, 0.4, 2)?;
+    /// assert_eq!((more.rows(), more.cols()), (5, 7));
+    /// assert!((surface.eval(0.8, 0.4)? - more.eval(0.8, 0.4)?).norm() < 1e-12);
+    /// // A fourth copy would leave a cubic discontinuous.
+    /// assert!(more.insert_knot(Direction::V, 0.4, 2).is_err());
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn insert_knot(&self, direction: Direction, value: Real, times: usize) -> Result<Self, BSplineError> {
         self.refine_knots(direction, &vec![value; times])
     }
@@ -183,6 +201,23 @@ impl BSplineSurface {
     /// # Errors
     /// [`BSplineError::ParameterOutOfDomain`] unless `start ≤ lo < hi ≤ end` of the domain
     /// ([`BSplineError::EmptyDomain`] when `lo ≥ hi`).
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// // The strip u ∈ [0.25, 0.6]: its own surface, the same points there.
+    /// let strip = surface.restricted(Direction::U, 0.25, 0.6)?;
+    /// assert_eq!(strip.knots_u().domain(), (0.25, 0.6));
+    /// assert_eq!(strip.cols(), surface.cols());
+    /// assert!((strip.eval(0.4, 0.9)? - surface.eval(0.4, 0.9)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn restricted(&self, direction: Direction, lo: Real, hi: Real) -> Result<Self, BSplineError> {
         let knots = self.knots_in(direction);
         knots.check_in_domain(direction, lo)?;
@@ -224,6 +259,27 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// None in practice (the domain is valid); as [`BSplineSurface::restricted`].
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// // Already clamped: the same surface.
+    /// assert_eq!(surface.clamped()?, surface);
+    /// // A plain uniform knot vector's domain [3, 5] (degree 3, 6 control points).
+    /// let open = KnotVector::new(3, (0..10).map(f64::from).collect())?;
+    /// let grid = (0..30).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, (i % 4) as f64)).collect();
+    /// let plain = BSplineSurface::new(open, surface.knots_v().clone(), 6, 5, grid)?;
+    /// let clamped = plain.clamped()?;
+    /// assert!(clamped.knots_u().is_clamped());
+    /// assert!((clamped.eval(3.7, 0.2)? - plain.eval(3.7, 0.2)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn clamped(&self) -> Result<Self, BSplineError> {
         let mut surface = self.clone();
         for direction in [Direction::U, Direction::V] {
@@ -241,6 +297,22 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// [`BSplineError::ParameterOutOfDomain`] unless `at` lies strictly inside the domain.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// let (below, above) = surface.split(Direction::V, 0.3)?;
+    /// assert_eq!((below.knots_v().domain(), above.knots_v().domain()), ((0.0, 0.3), (0.3, 1.0)));
+    /// assert!((below.eval(0.5, 0.3)? - above.eval(0.5, 0.3)?).norm() < 1e-12);
+    /// assert!(surface.split(Direction::V, 1.0).is_err()); // not inside the domain
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn split(&self, direction: Direction, at: Real) -> Result<(Self, Self), BSplineError> {
         let (start, end) = self.knots_in(direction).domain();
         if !(at > start && at < end) {
@@ -264,6 +336,25 @@ impl BSplineSurface {
     ///
     /// # Errors
     /// None in practice; as [`BSplineSurface::restricted`].
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 3) as f64)).collect();
+    /// let surface = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// // Two spans a direction: four bicubic patches of 4 × 4 control points each.
+    /// let patches = surface.bezier_patches()?;
+    /// assert_eq!(patches.len(), 4);
+    /// assert!(patches.iter().all(|b| (b.rows(), b.cols()) == (4, 4)));
+    /// // Patch (1, 0) covers u ∈ [0.5, 1], v ∈ [0, 0.5].
+    /// assert_eq!(patches[2].knots_u().domain(), (0.5, 1.0));
+    /// assert!((patches[2].eval(0.7, 0.2)? - surface.eval(0.7, 0.2)?).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
     pub fn bezier_patches(&self) -> Result<Vec<BSplineSurface>, BSplineError> {
         let (us, vs) = (self.knots_u().breakpoints(), self.knots_v().breakpoints());
         // Every break at multiplicity `degree` once, so that each patch below is a slice.
