@@ -276,6 +276,31 @@ fn plane_of(points: &[Point3<Real>], normal: Option<Vector3<Real>>) -> Result<Sc
 
 impl ScanPlane {
     /// The parameters of `p`: its position in the plane's rectangle, in `[0, 1]²`.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// // The plane is z = 0 (the bowl's least-variance direction); the points span [−1, 1]².
+    /// let plane = fit.plane;
+    /// assert!(plane.axes[2].z.abs() > 0.999);
+    /// let [u, v] = plane.params(&Point3::new(0.0, 0.0, 0.3));
+    /// assert!((u - 0.5).abs() < 1e-9 && (v - 0.5).abs() < 1e-9);
+    /// // Outside the rectangle: held to its edge.
+    /// let [u, _] = plane.params(&Point3::new(9.0, 0.0, 0.0));
+    /// assert!(u == 0.0 || u == 1.0);
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn params(&self, p: &Point3<Real>) -> [Real; 2] {
         let d = p - self.origin;
         std::array::from_fn(|k| {
@@ -285,6 +310,26 @@ impl ScanPlane {
     }
 
     /// The height of `p` above the plane.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// // Heights above the bowl's plane (through the points' centroid) differ as the z's do.
+    /// let (a, b) = (fit.plane.height(&points[0]), fit.plane.height(&points[820]));
+    /// assert!(((a - b).abs() - (points[0].z - points[820].z).abs()).abs() < 1e-9);
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn height(&self, p: &Point3<Real>) -> Real {
         (p - self.origin).dot(&self.axes[2])
     }
@@ -459,6 +504,16 @@ impl ScanFitOptions {
     ///
     /// # Errors
     /// The first setting out of range.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use splineface::scan::ScanFitOptions;
+    ///
+    /// assert!(ScanFitOptions::default().validate().is_ok());
+    /// let bad = ScanFitOptions { degree: 7, ..Default::default() };
+    /// assert!(bad.validate().unwrap_err().to_string().contains("degree"));
+    /// ```
     pub fn validate(&self) -> Result<(), ScanError> {
         let bad = |name: &'static str, value: String, expected: &'static str| {
             Err(ScanError::Option {
@@ -662,6 +717,23 @@ fn split_knots(
 ///
 /// # Errors
 /// A message naming the file and the problem (and the line, for XYZ).
+///
+/// # Examples
+///
+/// ```
+/// use splineface::scan::read_scan_points;
+///
+/// let path = std::env::temp_dir().join(format!("splineface-doc-{}.xyz", std::process::id()));
+/// std::fs::write(&path, "# x y z\n0 0 0\n1,0,0.5\n\n0\t1\t0.25\n")?;
+/// let points = read_scan_points(&path)?;
+/// assert_eq!(points.len(), 3);
+/// assert_eq!(points[1], nalgebra::Point3::new(1.0, 0.0, 0.5));
+/// std::fs::write(&path, "0 0 zero\n")?;
+/// let error = read_scan_points(&path).unwrap_err();
+/// assert!(error.to_string().contains("line 1"));
+/// std::fs::remove_file(&path)?;
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn read_scan_points(path: &Path) -> Result<Vec<Point3<Real>>, ScanFileError> {
     let error = |message: String| ScanFileError {
         file: path.to_path_buf(),
@@ -725,6 +797,28 @@ pub struct ScanFileError {
 impl ScanFit {
     /// The residuals on a `side × side` grid over `(u, v)` (rows from `v = 0`): each cell's
     /// largest residual, NaN where no point falls (empty for a `side` of 0).
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// // 4 × 4 cells over (u, v), each the largest residual of its points.
+    /// let cells = fit.residual_grid(4);
+    /// assert_eq!(cells.len(), 16);
+    /// assert!(cells.iter().all(|r| *r >= 0.0 && *r <= fit.max));
+    /// assert!(fit.residual_grid(0).is_empty());
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn residual_grid(&self, side: usize) -> Vec<Real> {
         if side == 0 {
             return Vec::new();
@@ -753,6 +847,17 @@ pub enum SurfaceFormat {
 
 impl SurfaceFormat {
     /// The format of `path` by its extension, if it names one.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use std::path::Path;
+    /// use splineface::scan::SurfaceFormat;
+    ///
+    /// assert_eq!(SurfaceFormat::from_path(Path::new("face.STP")), Some(SurfaceFormat::Step));
+    /// assert_eq!(SurfaceFormat::from_path(Path::new("face.json")), Some(SurfaceFormat::Json));
+    /// assert_eq!(SurfaceFormat::from_path(Path::new("face.obj")), None);
+    /// ```
     pub fn from_path(path: &Path) -> Option<Self> {
         match path.extension()?.to_str()?.to_ascii_lowercase().as_str() {
             "json" => Some(SurfaceFormat::Json),
@@ -764,6 +869,17 @@ impl SurfaceFormat {
 
 /// The residual files beside a surface file `out`: `STEM.residuals.json` and
 /// `STEM.residuals.png`.
+///
+/// # Examples
+///
+/// ```
+/// use std::path::Path;
+/// use splineface::scan::residual_paths;
+///
+/// let (report, heatmap) = residual_paths(Path::new("out/scan.step"));
+/// assert_eq!(report, Path::new("out/scan.residuals.json"));
+/// assert_eq!(heatmap, Path::new("out/scan.residuals.png"));
+/// ```
 pub fn residual_paths(out: &Path) -> (PathBuf, PathBuf) {
     let stem = out
         .file_stem()
@@ -780,6 +896,26 @@ impl ScanFit {
     ///
     /// # Errors
     /// [`ScanError::Fit`] for a `side` of 0, [`ScanError::Mesh`] if the mesh cannot be made.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// // Every one of the 10 × 10 cells holds points: 11² vertices, two triangles a cell.
+    /// let mesh = fit.mesh(10)?;
+    /// assert_eq!((mesh.positions().len(), mesh.triangles().len()), (121, 200));
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn mesh(&self, side: usize) -> Result<crate::mesh::TriangleMesh, ScanError> {
         let ts: Vec<Real> = (0..=side).map(|k| k as Real / side as Real).collect();
         let grid = self.surface.eval_grid(&ts, &ts)?;
@@ -814,6 +950,27 @@ impl ScanFit {
     /// out. Empty when no cell holds a point (`side` 0, or no points). The STEP file of
     /// `fit-surface` is trimmed to it, so that CAD shows the surface where the scan was, not
     /// the extrapolated corners of its rectangle.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// // The points fill the plane's rectangle: the footprint is its four corners.
+    /// let outline = fit.footprint(16);
+    /// assert_eq!(outline.len(), 4);
+    /// assert!(outline.iter().all(|q| (q.x == 0.0 || q.x == 1.0) && (q.y == 0.0 || q.y == 1.0)));
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn footprint(&self, side: usize) -> Vec<nalgebra::Point2<Real>> {
         let n = side;
         if n == 0 || self.params.is_empty() {
@@ -854,6 +1011,27 @@ impl ScanFit {
 
     /// The report of the fit as JSON: the scan's name, points, degree, grid, knots, rounds,
     /// tolerance, residuals (RMS, 99th percentile, largest), the plane and `seconds`.
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// let report = fit.report_json("bowl.xyz", &ScanFitOptions::default(), 0.01);
+    /// let value: serde_json::Value = serde_json::from_str(&report).expect("JSON");
+    /// assert_eq!(value["points"], 1600);
+    /// assert_eq!(value["grid"], serde_json::json!([8, 8]));
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn report_json(&self, scan: &str, options: &ScanFitOptions, seconds: Real) -> String {
         let mut sorted = self.residuals.clone();
         sorted.sort_by(|a, b| a.total_cmp(b));
@@ -899,6 +1077,31 @@ impl ScanFit {
     /// [`ScanError::Encode`] if the heatmap cannot be encoded; [`ScanError::Fit`] if the STEP
     /// face cannot be trimmed to [`ScanFit::footprint`] (a surface that tears along a knot
     /// line; not one `fit_scan` makes).
+    ///
+    /// # Examples
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::scan::{ScanFitOptions, fit_scan};
+    ///
+    /// // A 40 × 40 grid of samples of the bowl z = 0.2 (x² + y²) over [−1, 1]², fitted bicubic.
+    /// let points: Vec<Point3<f64>> = (0..1600)
+    ///     .map(|k| {
+    ///         let (x, y) = ((k / 40) as f64 / 19.5 - 1.0, (k % 40) as f64 / 19.5 - 1.0);
+    ///         Point3::new(x, y, 0.2 * (x * x + y * y))
+    ///     })
+    ///     .collect();
+    /// let fit = fit_scan(&points, &ScanFitOptions { grid: 8, ..Default::default() })?;
+    /// use std::path::Path;
+    /// use splineface::geometry::LengthUnit;
+    ///
+    /// // Nothing is written: the files come back as paths and bytes.
+    /// let files = fit.files(Path::new("out/bowl.step"), Some(Path::new("out/bowl.obj")), "{}", LengthUnit::Millimetre)?;
+    /// let names: Vec<_> = files.iter().map(|(p, _)| p.file_name().unwrap().to_string_lossy().into_owned()).collect();
+    /// assert_eq!(names, ["bowl.step", "bowl.residuals.json", "bowl.residuals.png", "bowl.obj"]);
+    /// assert!(files[0].1.starts_with(b"ISO-10303-21;"));
+    /// # Ok::<(), splineface::scan::ScanError>(())
+    /// ```
     pub fn files(
         &self,
         out: &Path,
