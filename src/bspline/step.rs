@@ -98,6 +98,27 @@ fn list<T>(items: &[T], f: impl Fn(&T) -> String) -> String {
 /// From [`BSplineSurface::image_of_polyline`], for a trim polygon outside the domain, with
 /// fewer than 3 distinct vertices ([`BSplineError::PolylineTooShort`]), enclosing no area
 /// ([`BSplineError::DegenerateTrim`]) or on a surface that jumps across a knot line.
+///
+/// # Examples
+///
+/// ```
+/// use nalgebra::{Point2, Point3};
+/// use splineface::bspline::{BSplineSurface, KnotVector, StepOptions, encode_step};
+///
+/// let k = KnotVector::clamped_uniform(3, 4, 0.0, 1.0)?;
+/// let grid = (0..16).map(|i| Point3::new((i / 4) as f64, (i % 4) as f64, ((i * 5) % 3) as f64)).collect();
+/// let surface = BSplineSurface::new(k.clone(), k, 4, 4, grid)?;
+/// // The whole rectangle, then a face trimmed to a triangle of the domain.
+/// let whole = encode_step(&surface, &StepOptions { name: "patch", ..Default::default() })?;
+/// assert!(whole.starts_with("ISO-10303-21;") && whole.contains("B_SPLINE_SURFACE_WITH_KNOTS"));
+/// assert!(!whole.contains("ADVANCED_FACE"));
+/// let triangle = [Point2::new(0.1, 0.1), Point2::new(0.9, 0.2), Point2::new(0.4, 0.8)];
+/// let trimmed = encode_step(&surface, &StepOptions { name: "patch", trim: &triangle, ..Default::default() })?;
+/// assert!(trimmed.contains("ADVANCED_FACE") && trimmed.contains("PCURVE"));
+/// // Two vertices enclose nothing.
+/// assert!(encode_step(&surface, &StepOptions { trim: &triangle[..2], ..Default::default() }).is_err());
+/// # Ok::<(), splineface::bspline::BSplineError>(())
+/// ```
 pub fn encode_step(surface: &BSplineSurface, options: &StepOptions<'_>) -> Result<String, BSplineError> {
     let trim = if options.trim.is_empty() {
         None
