@@ -214,6 +214,18 @@ fn second_order_in<const N: usize>(
     ]
 }
 
+/// The step `−H⁻¹g` for the symmetric `H = [[a, b], [b, c]]`, when `H` is positive definite
+/// beyond rounding (`det > 10⁻¹⁴ ac`): Newton's, or Gauss–Newton's for `H = JᵀJ`. One
+/// division, its latency most of a step's.
+#[inline(always)]
+fn newton_step(g: [Real; 2], (a, b, c): (Real, Real, Real)) -> Option<[Real; 2]> {
+    let det = a * c - b * b;
+    (a > 0.0 && det > 1e-14 * a * c).then(|| {
+        let inverse = det.recip();
+        [-(c * g[0] - b * g[1]) * inverse, -(a * g[1] - b * g[0]) * inverse]
+    })
+}
+
 /// The span of `knots` whose polynomial serves `t` in the piece `[lo, hi]`: the usual span,
 /// except on the piece's upper edge `hi` inside the domain, which belongs to the next span
 /// but is reached here from below.
@@ -976,16 +988,8 @@ impl<'a> ClosestPoints<'a> {
             let (tu, tv) = (fu + fuu * du + fuv * dv, fv + fuv * du + fvv * dv);
             let g = [r.dot(&tu), r.dot(&tv)];
             let (a, b, c) = (tu.dot(&tu), tu.dot(&tv), tv.dot(&tv));
-            // One division: its latency is most of a step's.
-            let solve = |(a, b, c): (Real, Real, Real)| -> Option<[Real; 2]> {
-                let det = a * c - b * b;
-                (a > 0.0 && det > 1e-14 * a * c).then(|| {
-                    let inverse = det.recip();
-                    [-(c * g[0] - b * g[1]) * inverse, -(a * g[1] - b * g[0]) * inverse]
-                })
-            };
             let full = (a + r.dot(&fuu), b + r.dot(&fuv), c + r.dot(&fvv));
-            let Some([su, sv]) = solve(full).or_else(|| solve((a, b, c))) else {
+            let Some([su, sv]) = newton_step(g, full).or_else(|| newton_step(g, (a, b, c))) else {
                 break;
             };
             (du, dv) = ((du + su).clamp(lu, uu), (dv + sv).clamp(lv, uv));
@@ -1072,13 +1076,7 @@ impl<'a> ClosestPoints<'a> {
                 match (fixed_u, fixed_v) {
                     (true, false) => (c > 0.0).then(|| [0.0, -g[1] / c]),
                     (false, true) => (a > 0.0).then(|| [-g[0] / a, 0.0]),
-                    _ => {
-                        let det = a * c - b * b;
-                        (a > 0.0 && det > 1e-14 * a * c).then(|| {
-                            let inverse = det.recip();
-                            [-(c * g[0] - b * g[1]) * inverse, -(a * g[1] - b * g[0]) * inverse]
-                        })
-                    }
+                    _ => newton_step(g, (a, b, c)),
                 }
             };
             let Some(mut step) = solve(full).or_else(|| solve((a, b, c))) else {

@@ -66,6 +66,20 @@ pub(super) fn multiplicity(knots: &[Real], value: Real) -> usize {
     knots.iter().filter(|&&k| k == value).count()
 }
 
+/// The basis functions of knots `u` (degree `p`) alive on `[lo, hi]`, two of its knots each
+/// of multiplicity ≥ `p`, as `first..end`, and the clamped knots over it: `lo` and `hi`
+/// `p + 1` times with the knots strictly between. `lo` occupies `u[s..s + m]`: the first
+/// function alive on `[lo, lo + ε)` is `N_{s+m−1−p}`; `hi` starts at `u[e]`, the last one
+/// alive on `(hi − ε, hi]` is `N_{e−1}`.
+fn clamped_over(u: &[Real], p: usize, lo: Real, hi: Real) -> (usize, usize, Vec<Real>) {
+    let above = u.partition_point(|&k| k <= lo);
+    let end = u.partition_point(|&k| k < hi);
+    let mut clamped = vec![lo; p + 1];
+    clamped.extend_from_slice(&u[above..end]);
+    clamped.extend(std::iter::repeat_n(hi, p + 1));
+    (above - 1 - p, end, clamped)
+}
+
 impl BSplineSurface {
     fn knots_in(&self, direction: Direction) -> &KnotVector {
         match direction {
@@ -236,19 +250,11 @@ impl BSplineSurface {
             std::borrow::Cow::Owned(self.refine_knots(direction, &inserts)?)
         };
         let u = refined.knots_in(direction).knots();
-        // `lo` occupies u[s..s + m]: the first basis function alive on [lo, lo + ε) is
-        // N_{s+m−1−p}; `hi` starts at u[e], the last one alive on (hi − ε, hi] is N_{e−1}.
-        let s = u.partition_point(|&k| k < lo);
-        let m = multiplicity(u, lo);
-        let e = u.partition_point(|&k| k < hi);
-        let first = s + m - 1 - p;
-        let mut clamped = vec![lo; p + 1];
-        clamped.extend_from_slice(&u[s + m..e]);
-        clamped.extend(std::iter::repeat_n(hi, p + 1));
+        let (first, end, clamped) = clamped_over(u, p, lo, hi);
         let curves: Vec<Vec<Point3<Real>>> = refined
             .curves(direction)
             .into_iter()
-            .map(|c| c[first..e].to_vec())
+            .map(|c| c[first..end].to_vec())
             .collect();
         refined.with_curves(direction, KnotVector::new(p, clamped)?, &curves)
     }
@@ -370,8 +376,9 @@ impl BSplineSurface {
         }
         // Each span `[a, b]` now has both ends at multiplicity ≥ the degree, so its patch is
         // the `(p + 1)`-wide slice of the grid that [`BSplineSurface::restricted`] would keep
-        // (its `first`), over the Bézier knots `[a, …, a, b, …, b]`: taken directly, without
-        // restricting a copy of the grid for every span (cubic in the grid's side).
+        // (`clamped_over`, with no knots between: the Bézier knots `[a, …, a, b, …, b]`),
+        // taken directly, without restricting a copy of the grid for every span (cubic in the
+        // grid's side).
         let slices =
             |direction: Direction, breaks: &[Real]| -> Result<Vec<(usize, KnotVector)>, BSplineError> {
                 let knots = full.knots_in(direction);
@@ -379,10 +386,7 @@ impl BSplineSurface {
                 breaks
                     .windows(2)
                     .map(|w| {
-                        let s = u.partition_point(|&k| k < w[0]);
-                        let first = s + multiplicity(u, w[0]) - 1 - p;
-                        let mut bezier = vec![w[0]; p + 1];
-                        bezier.extend(std::iter::repeat_n(w[1], p + 1));
+                        let (first, _, bezier) = clamped_over(u, p, w[0], w[1]);
                         Ok((first, KnotVector::new(p, bezier)?))
                     })
                     .collect()

@@ -265,7 +265,10 @@ fn lanes(a: f64x4) -> [Real; 4] {
     [a.0, a.1, a.2, a.3]
 }
 
-/// A knot span's four cubic basis functions as polynomials in `t = (u − start)/h`.
+/// A knot span's four cubic basis functions as polynomials in `t = (u − start)/h`: the span's
+/// entries of [`SpanPolynomials`] in one record, so that a point's lookup is one bounds check
+/// (reading them from `SpanPolynomials` itself was 2–5% slower, three pairs of alternating
+/// runs).
 #[derive(Clone, Copy)]
 struct CubicSpan {
     start: Real,

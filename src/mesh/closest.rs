@@ -391,17 +391,11 @@ mod tests {
     /// comparison sort of the whole keys, which it must match exactly.
     #[test]
     fn a_radix_sort_orders_keys_like_a_comparison_sort() {
-        let mut state = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            state
-        };
+        let mut rng = crate::random::Lcg(3);
         // Few distinct codes (many ties) and codes over all 30 bits.
         for spread_bits in [4u32, 30] {
             let mut keys: Vec<u64> = (0..5000u64)
-                .map(|k| (next() & ((1 << spread_bits) - 1)) << 32 | k)
+                .map(|k| ((rng.next() * (1u64 << spread_bits) as Real) as u64) << 32 | k)
                 .collect();
             let mut expected = keys.clone();
             expected.sort_unstable();
