@@ -2,6 +2,8 @@
 //! for the demo's scenes and for reproducible synthetic data in tools, tests and benchmarks
 //! (which must not depend on a crate's random stream, which may change between releases).
 
+use nalgebra::Point3;
+
 use crate::Real;
 
 /// A 64-bit linear congruential generator with Knuth's MMIX constants. Not for anything that
@@ -34,6 +36,25 @@ impl Lcg {
     /// Uniform in `[a, b)`.
     pub fn uniform(&mut self, a: Real, b: Real) -> Real {
         a + (b - a) * self.next()
+    }
+
+    /// A point uniform in the box `[lo, hi]`: [`Lcg::uniform`] for `x`, then `y`, then `z`.
+    ///
+    /// # Examples
+    /// ```
+    /// use splineface::random::Lcg;
+    ///
+    /// let (mut a, mut b) = (Lcg(3), Lcg(3));
+    /// let p = a.point_in([0.0, -1.0, 5.0], [1.0, 1.0, 6.0]);
+    /// assert!((0.0..1.0).contains(&p.x) && (-1.0..1.0).contains(&p.y) && (5.0..6.0).contains(&p.z));
+    /// assert_eq!(p.x, b.uniform(0.0, 1.0)); // the coordinates in that order
+    /// assert_eq!(p.y, b.uniform(-1.0, 1.0));
+    /// ```
+    pub fn point_in(&mut self, lo: [Real; 3], hi: [Real; 3]) -> Point3<Real> {
+        let x = self.uniform(lo[0], hi[0]);
+        let y = self.uniform(lo[1], hi[1]);
+        let z = self.uniform(lo[2], hi[2]);
+        Point3::new(x, y, z)
     }
 
     /// Standard normal (Box–Muller, two draws per value).

@@ -1162,11 +1162,7 @@ mod tests {
             }
             let tree = KdTree::new(points.clone());
             for _ in 0..200 {
-                let q = Point3::new(
-                    rng.uniform(-1.5, 1.5),
-                    rng.uniform(-1.5, 1.5),
-                    rng.uniform(-0.5, 0.5),
-                );
+                let q = rng.point_in([-1.5, -1.5, -0.5], [1.5, 1.5, 0.5]);
                 let found = (points[tree.nearest(&q)] - q).norm_squared();
                 let nearest = points
                     .iter()
@@ -1218,13 +1214,7 @@ mod tests {
     /// `n` points uniform in the slab `[0, 4] × [−1, 1] × [0, depth]`.
     fn slab(rng: &mut Lcg, n: usize, depth: Real) -> Vec<Point3<Real>> {
         (0..n)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(0.0, 4.0),
-                    rng.uniform(-1.0, 1.0),
-                    rng.uniform(0.0, depth),
-                )
-            })
+            .map(|_| rng.point_in([0.0, -1.0, 0.0], [4.0, 1.0, depth]))
             .collect()
     }
 
@@ -1241,11 +1231,7 @@ mod tests {
             [0, 1, 2].map(|a| (((p[a] - grid.lo[a]) / side) as usize).min(grid.dims[a] - 1))
         };
         for _ in 0..2000 {
-            let q = Point3::new(
-                rng.uniform(-0.5, 4.5),
-                rng.uniform(-1.5, 1.5),
-                rng.uniform(-0.2, 0.5),
-            );
+            let q = rng.point_in([-0.5, -1.5, -0.2], [4.5, 1.5, 0.5]);
             let inside =
                 (0..3).all(|a| q[a] >= grid.lo[a] && q[a] < grid.lo[a] + side * grid.dims[a] as Real);
             let expected = inside
@@ -1274,11 +1260,7 @@ mod tests {
         let points = slab(&mut rng, 400, 0.5);
         let boxes: Vec<(Point3<Real>, Point3<Real>)> = (0..60)
             .map(|_| {
-                let lo = Point3::new(
-                    rng.uniform(-0.5, 4.0),
-                    rng.uniform(-1.5, 1.0),
-                    rng.uniform(-0.2, 0.5),
-                );
+                let lo = rng.point_in([-0.5, -1.5, -0.2], [4.0, 1.0, 0.5]);
                 (
                     lo,
                     lo + Vector3::new(
@@ -1293,11 +1275,7 @@ mod tests {
         assert!(grid.margin > 0.0, "the lists were made");
         let mut listed = 0;
         for _ in 0..3000 {
-            let q = Point3::new(
-                rng.uniform(-0.5, 4.5),
-                rng.uniform(-1.5, 1.5),
-                rng.uniform(-0.2, 0.7),
-            );
+            let q = rng.point_in([-0.5, -1.5, -0.2], [4.5, 1.5, 0.7]);
             let Some(cube) = grid.cube(&q) else { continue };
             assert!(grid.near(cube, 1.001 * grid.margin).is_none());
             let r = rng.uniform(0.0, grid.margin);

@@ -317,13 +317,7 @@ mod tests {
     /// `n` control points with coordinates uniform in [−5, 5].
     fn random_grid(rng: &mut Lcg, n: usize) -> Vec<Point3<Real>> {
         (0..n)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                    rng.uniform(-5.0, 5.0),
-                )
-            })
+            .map(|_| rng.point_in([-5.0, -5.0, -5.0], [5.0, 5.0, 5.0]))
             .collect()
     }
 

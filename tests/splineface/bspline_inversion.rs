@@ -125,11 +125,7 @@ fn check_closest_points(ku: KnotVector, kv: KnotVector, seed: u64) -> Result<(),
             let n = s.normal(u, v).unwrap().map_or(Vector3::z(), |n| n.into_inner());
             s.eval(u, v).unwrap() + n * rng.uniform(-0.05, 0.05)
         } else {
-            Point3::new(
-                rng.uniform(-1.0, rows),
-                rng.uniform(-1.0, cols),
-                rng.uniform(-2.0, 2.0),
-            )
+            rng.point_in([-1.0, -1.0, -2.0], [rows, cols, 2.0])
         };
         let c = inverter.closest(&query).unwrap();
         prop_assert!((c.point - s.eval(c.u, c.v).unwrap()).norm() < 1e-12);

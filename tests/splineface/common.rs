@@ -96,13 +96,7 @@ pub fn in_domain(knots: &KnotVector, t: Real) -> Real {
 pub fn random_points(count: usize, seed: u64) -> Vec<Point3<Real>> {
     let mut rng = Lcg(seed);
     (0..count)
-        .map(|_| {
-            Point3::new(
-                rng.uniform(-10.0, 10.0),
-                rng.uniform(-10.0, 10.0),
-                rng.uniform(-10.0, 10.0),
-            )
-        })
+        .map(|_| rng.point_in([-10.0, -10.0, -10.0], [10.0, 10.0, 10.0]))
         .collect()
 }
 

@@ -80,13 +80,7 @@ fn closest_points_agree_with_brute_force_and_parry() {
     let mesh = random_mesh(&mut rng, 30);
     let index = ClosestPoints::new(&mesh);
     let queries: Vec<Point3<Real>> = (0..2000)
-        .map(|_| {
-            Point3::new(
-                rng.uniform(-5.0, 35.0),
-                rng.uniform(-5.0, 35.0),
-                rng.uniform(-12.0, 12.0),
-            )
-        })
+        .map(|_| rng.point_in([-5.0, -5.0, -12.0], [35.0, 35.0, 12.0]))
         .collect();
     let many = index.closest_many(&queries);
     let vertices: Vec<Vec3> = mesh

@@ -139,13 +139,7 @@ mod frame_and_similarity {
     fn random_structure(seed: u64) -> Vec<Point3<f64>> {
         let mut rng = Lcg(seed);
         (0..40)
-            .map(|_| {
-                Point3::new(
-                    rng.uniform(-60.0, 60.0),
-                    rng.uniform(-80.0, 40.0),
-                    rng.uniform(-10.0, 30.0),
-                )
-            })
+            .map(|_| rng.point_in([-60.0, -80.0, -10.0], [60.0, 40.0, 30.0]))
             .collect()
     }
 
