@@ -73,16 +73,16 @@ fn bench(c: &mut Criterion) {
     let space = reference.face_space().expect("the default carries a face space");
     let views: Vec<Vec<Point2<f64>>> = photos.iter().map(PhotoPoints::y_up).collect();
     let weights = splineface::structure::contour_weighted(DepthOptions::default().contour_weight);
-    for (name, expression_sigma) in [
-        (
-            "face space (60 identity, 53 expression modes)",
-            Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA),
-        ),
-        ("face space, neutral (60 identity modes)", None),
+    let expressive = Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA);
+    for (name, expression_sigma, outline) in [
+        ("face space (60 identity, 53 expression modes)", expressive, true),
+        ("face space, jaw points fixed (no outline)", expressive, false),
+        ("face space, neutral (60 identity modes)", None, true),
     ] {
         let options = splineface::face::PhotoFitOptions {
             noise: splineface::pipeline::Shape::DEFAULT_NOISE,
             expression_sigma,
+            outline,
         };
         group.bench_function(name, |b| {
             b.iter(|| space.fit_photos(black_box(&views), &weights, &options).unwrap())

@@ -78,6 +78,7 @@ fn bench(c: &mut Criterion) {
     let fit_options = PhotoFitOptions {
         noise: splineface::pipeline::Shape::DEFAULT_NOISE,
         expression_sigma: None,
+        outline: false,
     };
     let fit = space.fit_photos(&views, &weights, &fit_options).unwrap();
     let refine_views: Vec<RefineView> = images

@@ -15,7 +15,8 @@ use crate::Real;
 use crate::align::{AlignError, PhotoPoints};
 use crate::compare::{CompareError, CompareOptions, Comparison};
 use crate::error::SettingError;
-use crate::face::{Deformation, FaceError, FaceSurface, MeanFace, MeshOptions};
+use crate::face::outline::outline_move;
+use crate::face::{Deformation, FaceError, FaceSurface, MeanFace, MeshOptions, OUTLINE_POINTS};
 use crate::io::EncodeError;
 use crate::landmarks::format_pts;
 use crate::mesh::TriangleMesh;
@@ -139,7 +140,9 @@ pub struct Scene {
 ///
 /// The structure is the subject's as a landmarker places it: its landmark vertices moved by
 /// the offsets between the default reference's photo structure and its landmark vertices
-/// ([`ReferenceFace::photo_structure`]), the same definitions the pipeline deforms from.
+/// ([`ReferenceFace::photo_structure`]), the same definitions the pipeline deforms from; in
+/// each photo, the jaw points off the chin ([`crate::face::OUTLINE_POINTS`]) move further, along
+/// the subject's surface onto its outline as the photo sees it, as a landmarker's do.
 ///
 /// # Errors
 /// [`DemoError::Setting`] as [`SceneOptions::validate`].
@@ -171,7 +174,17 @@ pub fn scene(options: &SceneOptions) -> Result<Scene, DemoError> {
             random.uniform(-8.0, 8.0),
         ];
         let view = View::from_yaw_pitch_roll_degrees(pose[0], pose[1], pose[2]);
-        let photo = synthetic_photo(&mesh, &seen, &view, width, height, 0.1)?;
+        // The jaw points off the chin on the face's outline in this view, where a landmarker
+        // puts them.
+        let rows = view.rotation.matrix().fixed_rows::<2>(0).into_owned();
+        let mut in_view = seen.clone();
+        for &j in &OUTLINE_POINTS {
+            let p = subject.structure()[j];
+            let place = subject.frame().parameters(p.x, p.y);
+            in_view[j] +=
+                outline_move(subject.surface(), (place.x, place.y), &rows).map_err(FaceError::from)?;
+        }
+        let photo = synthetic_photo(&mesh, &in_view, &view, width, height, 0.1)?;
         let eyes = (photo.points[LEFT_EYE_CENTRE] - photo.points[RIGHT_EYE_CENTRE])
             .norm()
             .max(1.0);

@@ -834,6 +834,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             "space_noise" => s.space_noise = number(&value)?,
             "expression_sigma" => s.expression_sigma = number(&value)?,
             "expressions" => s.expressions = flag(&value)?,
+            "outline" => s.outline = flag(&value)?,
             "refine" => s.refine = flag(&value)?,
             "deformation" => s.deformation = text(&value)?,
             "spacing" => s.spacing = number(&value)?,
@@ -849,7 +850,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             _ => {
                 return Err(PyTypeError::new_err(format!(
                     "unexpected keyword argument '{key}' (the settings are units, eye_distance, shape, \
-                     space_noise, expression_sigma, expressions, refine, deformation, spacing, depth_size, \
+                     space_noise, expression_sigma, expressions, outline, refine, deformation, spacing, depth_size, \
                      texture_size, min_photos)"
                 )));
             }

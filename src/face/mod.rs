@@ -24,6 +24,7 @@
 //! (`cargo run --release --example surface_eval`): see [`Deformation::default`].
 
 pub mod modes;
+pub(crate) mod outline;
 pub mod refine;
 mod space;
 mod tessellate;
@@ -36,10 +37,13 @@ use crate::bspline::{BSplineError, BSplineSurface, SurfaceFit};
 use crate::reference::{FrontalFrame, ReferenceFace};
 use crate::structure::POINT_COUNT;
 
+pub use outline::OUTLINE_POINTS;
 pub use refine::{
     ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement, Window,
 };
-pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
+pub use space::{
+    DenseFitOptions, FaceSpace, OUTLINE_ROUNDS, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit,
+};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 pub use texture::{
     AUTOMATIC_COVERAGE, AUTOMATIC_MAX_SIDE, AUTOMATIC_MIN_SIDE, FaceTexture, NO_PHOTO, TexelSource,

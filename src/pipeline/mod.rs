@@ -145,6 +145,10 @@ pub enum Shape {
         /// ([`crate::face::PhotoFitOptions::expression_sigma`]), or `None` to take every
         /// photo as neutral.
         expressions: Option<Real>,
+        /// Measure the jaw points off the chin against the face's outline as each photo
+        /// sees it ([`crate::face::PhotoFitOptions::outline`]); `false` ties them to fixed
+        /// places of the face.
+        outline: bool,
     },
 }
 
@@ -214,6 +218,7 @@ impl Default for Shape {
         Shape::Space {
             noise: Self::DEFAULT_NOISE,
             expressions: Some(Self::DEFAULT_EXPRESSION_SIGMA),
+            outline: true,
         }
     }
 }
@@ -317,7 +322,8 @@ pub struct PhotoFit {
     /// the principal point does not matter without perspective).
     pub camera: RefinedCamera,
     /// The face's 40 points as the camera sees them, pixels with `y` down (`NaN` for a point
-    /// behind the camera).
+    /// behind the camera); the jaw points off the chin on the face's outline when the fit
+    /// measured them there ([`crate::face::PhotoSpaceFit::outline_shifts`]).
     pub points: Vec<nalgebra::Point2<Real>>,
     /// The RMS distance from the photo's own 40 points, pixels.
     pub rms_pixels: Real,
@@ -436,12 +442,17 @@ pub fn reconstruct(
 
     let start = Instant::now();
     let space = match options.shape {
-        Shape::Space { noise, expressions } => reference.face_space().map(|space| {
+        Shape::Space {
+            noise,
+            expressions,
+            outline,
+        } => reference.face_space().map(|space| {
             (
                 space,
                 crate::face::PhotoFitOptions {
                     noise,
                     expression_sigma: expressions,
+                    outline,
                 },
             )
         }),
@@ -703,9 +714,15 @@ fn space_face(
         kept,
         with_images,
     } = *photos;
-    let views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
+    let mut views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
     let weights = crate::structure::contour_weighted(options.depth.contour_weight);
     let mut fit = space.fit_photos(&views, &weights, fit_options)?;
+    // The refinement measures the jaw points against the outline the landmark fit found.
+    for (view, shifts) in views.iter_mut().zip(&fit.outline_shifts) {
+        for (p, s) in view.iter_mut().zip(shifts) {
+            *p += s;
+        }
+    }
     timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
     let mut refinement = None;
     if let (Some(refine), true) = (options.refine, with_images) {
@@ -852,12 +869,18 @@ fn photo_fits(
             }
             None => depth.structure.clone(),
         };
+        // The jaw points off the chin where the fit measured them: on the face's outline.
+        let shifts = space.and_then(|(_, fit)| fit.outline_shifts.get(slot));
         let points: Vec<nalgebra::Point2<Real>> = structure
             .iter()
-            .map(|x| {
-                camera
-                    .pixel(x)
-                    .unwrap_or_else(|| nalgebra::Point2::new(Real::NAN, Real::NAN))
+            .enumerate()
+            .map(|(j, x)| {
+                let shift = shifts.map_or_else(nalgebra::Vector2::zeros, |s| s[j]);
+                camera.pixel(x).map_or_else(
+                    || nalgebra::Point2::new(Real::NAN, Real::NAN),
+                    // The shifts are `y` up, the pixels `y` down.
+                    |p| p - nalgebra::Vector2::new(shift.x, -shift.y),
+                )
             })
             .collect();
         let squares: Vec<Real> = points

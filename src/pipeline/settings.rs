@@ -23,6 +23,9 @@ pub struct Settings {
     pub expression_sigma: f64,
     /// Fit an expression per photo (else every photo is taken as neutral).
     pub expressions: bool,
+    /// Measure the jaw points against the face's outline in each photo ([`Shape::Space`]'s
+    /// `outline`).
+    pub outline: bool,
     /// Refine the face with the photos' pixels ([`PipelineOptions::refine`]).
     pub refine: bool,
     /// The deformation of `shape = "deformed"`: `local` or `affine`.
@@ -47,6 +50,7 @@ impl Default for Settings {
             space_noise: Shape::DEFAULT_NOISE,
             expression_sigma: Shape::DEFAULT_EXPRESSION_SIGMA,
             expressions: true,
+            outline: true,
             refine: true,
             deformation: "local".into(),
             spacing: 1.0,
@@ -108,6 +112,7 @@ impl Settings {
             "space" => Shape::Space {
                 noise: self.space_noise,
                 expressions: self.expressions.then_some(self.expression_sigma),
+                outline: self.outline,
             },
             "deformed" => Shape::Deformed,
             other => return Err(bad("shape", word(other), "expected space or deformed")),

@@ -57,6 +57,7 @@ fn neutral(noise: f64) -> PhotoFitOptions {
     PhotoFitOptions {
         noise,
         expression_sigma: None,
+        outline: false,
     }
 }
 
@@ -381,6 +382,7 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
     let options = PhotoFitOptions {
         noise: 1e-6,
         expression_sigma: Some(1e3),
+        outline: false,
     };
     let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], &options).unwrap();
     for (w, t) in fit.weights.iter().zip(&identity) {
@@ -452,6 +454,7 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
     let bad = PhotoFitOptions {
         noise: 1.0,
         expression_sigma: Some(0.0),
+        outline: false,
     };
     assert!(matches!(
         space.fit_photos(&views, &[1.0; POINT_COUNT], &bad),
@@ -467,4 +470,146 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
         err.to_string().contains("1 expression names for 0 fields"),
         "{err}"
     );
+}
+
+/// A face round enough to have an outline: a vertical cylinder of radius 61 (the jaw points,
+/// 57 units out, lie where it slopes at 69°), zero at the eye centres, and the reference fitted
+/// to it.
+fn round_fixture() -> &'static (TriangleMesh, ReferenceFace) {
+    static FIXTURE: OnceLock<(TriangleMesh, ReferenceFace)> = OnceLock::new();
+    FIXTURE.get_or_init(|| {
+        let radius: f64 = 61.0;
+        let height = move |x: f64, _: f64| {
+            (radius * radius - x * x).max(0.0).sqrt() - (radius * radius - 625.0).sqrt()
+        };
+        let scan = crate::reference::height_field_scan(height, -61.0..=61.0, -120.0..=70.0, 121);
+        let reference =
+            build_reference(std::slice::from_ref(&scan), &ReferenceOptions::default(), "test").unwrap();
+        (scan.mesh, reference)
+    })
+}
+
+/// [`landmarks`] with the jaw points off the chin at the scan's vertices nearest the
+/// structure's: their modes are then the surface's own displacement there, as a real
+/// space's are (its landmark vertices lie on its scan).
+fn jaw_landmarks(mesh: &TriangleMesh, reference: &ReferenceFace) -> Vec<usize> {
+    let mut ibug = landmarks(mesh);
+    for &j in &splineface::face::OUTLINE_POINTS {
+        let point = reference.structure()[j];
+        let nearest = (0..mesh.positions().len())
+            .min_by(|&a, &b| {
+                let d = |k: usize| (mesh.positions()[k] - point).norm();
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        ibug[splineface::structure::POINTS[j].ibug_sources[0]] = nearest;
+    }
+    ibug
+}
+
+/// How far a landmarker sees a jaw point `point` of a face moved along the face's surface
+/// `surface` (a height field over `reference`'s frame, as members of a space on it are)
+/// onto its outline, by brute force: along the surface's line at the point's height, from
+/// the point in to the middle of the face, the place the camera `pose` sees farthest toward
+/// the point's side, less the point's own place.
+fn outline_move(
+    surface: &splineface::bspline::BSplineSurface,
+    reference: &ReferenceFace,
+    point: &Point3<f64>,
+    pose: &splineface::depth::Pose,
+) -> Vector3<f64> {
+    let n = 4000;
+    let rows = pose.rotation.matrix().fixed_rows::<2>(0).into_owned();
+    let axis = rows * Vector3::x();
+    let side = point.x.signum();
+    let start = reference.frame().parameters(point.x, point.y);
+    let along = |k: usize| {
+        let u = start.x + (0.5 - start.x) * k as f64 / n as f64;
+        surface.eval(u, start.y).unwrap()
+    };
+    let outline = (0..n)
+        .map(along)
+        .max_by(|a, b| {
+            (side * (rows * a.coords).dot(&axis)).total_cmp(&(side * (rows * b.coords).dot(&axis)))
+        })
+        .unwrap();
+    outline - along(0)
+}
+
+#[test]
+fn the_photo_fit_measures_the_jaw_against_the_faces_outline() {
+    use nalgebra::Point2;
+    use splineface::depth::Pose;
+    use splineface::face::OUTLINE_POINTS;
+    let (mesh, reference) = round_fixture();
+    let space = FaceSpace::from_displacements(
+        reference,
+        mesh,
+        &jaw_landmarks(mesh, reference),
+        &fields(mesh),
+        &[1.0, 1.0, 1.0],
+    )
+    .unwrap();
+    let truth = [0.8, -1.3, 0.5];
+    let shape = space.structure(&truth).unwrap();
+    let member = space.surfaces().surface(&truth).unwrap();
+    // Turned enough that on the side turned away the outline lies well inside the jaw points.
+    let poses = [
+        Pose::from_yaw_pitch_roll_degrees(-35.0, 5.0, 3.0, 4.0),
+        Pose::from_yaw_pitch_roll_degrees(0.0, -10.0, -5.0, 3.0),
+        Pose::from_yaw_pitch_roll_degrees(40.0, 8.0, 0.0, 5.0),
+        Pose::from_yaw_pitch_roll_degrees(25.0, -4.0, 2.0, 4.5),
+    ];
+    let mut moved: f64 = 0.0;
+    let views: Vec<Vec<Point2<f64>>> = poses
+        .iter()
+        .map(|pose| {
+            let mut seen = shape.clone();
+            for &j in &OUTLINE_POINTS {
+                seen[j] += outline_move(&member, reference, &reference.structure()[j], pose);
+                moved = moved.max((pose.project(&seen[j]) - pose.project(&shape[j])).norm());
+            }
+            seen.iter().map(|p| pose.project(p)).collect()
+        })
+        .collect();
+    assert!(moved > 8.0, "the outline moves a jaw point {moved} px only");
+    let options = |outline| PhotoFitOptions {
+        noise: 1e-3,
+        expression_sigma: None,
+        outline,
+    };
+    let error = |fit: &splineface::face::PhotoSpaceFit| {
+        fit.weights
+            .iter()
+            .zip(&truth)
+            .map(|(w, t)| (w - t).abs())
+            .fold(0.0, f64::max)
+    };
+    let weights = [1.0; POINT_COUNT];
+    let with = space.fit_photos(&views, &weights, &options(true)).unwrap();
+    let without = space.fit_photos(&views, &weights, &options(false)).unwrap();
+    // Measured: 0.002 with the outline (its lines' samples lie about half a unit apart),
+    // 0.057 without.
+    assert!(error(&with) < 0.01, "{:?} against {truth:?}", with.weights);
+    assert!(error(&without) > 0.03, "{:?}", without.weights);
+    assert!(with.rms_units.iter().all(|r| *r < 0.05), "{:?}", with.rms_units);
+    assert!(
+        without.rms_units.iter().any(|r| *r > 0.2),
+        "{:?}",
+        without.rms_units
+    );
+    assert!(without.outline_shifts.is_empty());
+    // The shifts move the outline points only, and the fitted points then lie on the photos'
+    // (within a pixel, a fifth of a unit: the shifts were found before the last round).
+    for ((shifts, view), (pose, offset)) in with.outline_shifts.iter().zip(&views).zip(&with.poses) {
+        for (j, s) in shifts.iter().enumerate() {
+            assert!(OUTLINE_POINTS.contains(&j) || s.norm() == 0.0);
+            let seen = offset + pose.project(&shape[j]).coords - s;
+            assert!(
+                (seen - view[j]).norm() < 1.0,
+                "point {j}: {seen} against {}",
+                view[j]
+            );
+        }
+    }
 }

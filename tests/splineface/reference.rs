@@ -48,11 +48,23 @@ fn face_difference(a: &ReferenceFace, b: &ReferenceFace) -> f64 {
 /// The height field `height` tessellated over a square wider than any face region, with the
 /// embedded reference's structure lifted onto it.
 pub(crate) fn synthetic_scan() -> ReferenceScan {
-    let n = 121;
-    let at = |k: usize| -150.0 + 300.0 * k as f64 / (n - 1) as f64;
+    height_field_scan(height, -150.0..=150.0, -150.0..=150.0, 121)
+}
+
+/// A height field tessellated over `xs × ys` (`n` vertices a side), with the embedded
+/// reference's structure lifted onto it.
+pub(crate) fn height_field_scan(
+    height: impl Fn(f64, f64) -> f64,
+    xs: std::ops::RangeInclusive<f64>,
+    ys: std::ops::RangeInclusive<f64>,
+    n: usize,
+) -> ReferenceScan {
+    let at = |range: &std::ops::RangeInclusive<f64>, k: usize| {
+        range.start() + (range.end() - range.start()) * k as f64 / (n - 1) as f64
+    };
     let positions: Vec<Point3<f64>> = (0..n * n)
         .map(|k| {
-            let (x, y) = (at(k % n), at(k / n));
+            let (x, y) = (at(&xs, k % n), at(&ys, k / n));
             Point3::new(x, y, height(x, y))
         })
         .collect();

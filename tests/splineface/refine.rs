@@ -216,6 +216,7 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
             &PhotoFitOptions {
                 noise: 4.0,
                 expression_sigma: None,
+                outline: false,
             },
         )
         .unwrap();

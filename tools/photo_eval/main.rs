@@ -999,7 +999,11 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         options,
         vertex_structure: false,
     };
-    let space = |noise, expressions| Shape::Space { noise, expressions };
+    let space = |noise, expressions| Shape::Space {
+        noise,
+        expressions,
+        outline: true,
+    };
     let all = vec![
         method("default", default),
         Method {
@@ -1070,6 +1074,23 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             )
         },
         method("landmarks only", with(&|o| o.refine = None)),
+        method(
+            "jaw fixed",
+            with(&|o| {
+                if let Shape::Space { outline, .. } = &mut o.shape {
+                    *outline = false;
+                }
+            }),
+        ),
+        method(
+            "landmarks only jaw fixed",
+            with(&|o| {
+                o.refine = None;
+                if let Shape::Space { outline, .. } = &mut o.shape {
+                    *outline = false;
+                }
+            }),
+        ),
         method(
             "refine β0.1",
             with(&|o| {

@@ -36,6 +36,7 @@ class _Settings(TypedDict, total=False):
     space_noise: float  # the face-space fit's landmark noise, canonical units [4]
     expression_sigma: float  # the prior deviation of each photo's expression [0.5]
     expressions: bool  # fit an expression per photo [True]
+    outline: bool  # measure the jaw's landmarks against the face's outline in each photo [True]
     refine: bool  # refine with the photos' pixels [True]
     deformation: str  # "local" ["local"] or "affine", for shape="deformed"
     spacing: float  # mesh vertex spacing, canonical units, 0.1 to 20 [1]

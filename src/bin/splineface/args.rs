@@ -310,6 +310,11 @@ pub(crate) struct OutputArgs {
     /// Take every photo as neutral: fit no expressions.
     #[arg(long)]
     pub(crate) no_expressions: bool,
+    /// Tie the jaw's landmarks to fixed places of the face rather than to its outline as each
+    /// photo sees it (where a landmarker puts them; the outline is the default, by
+    /// measurement).
+    #[arg(long)]
+    pub(crate) no_outline: bool,
     /// Make the face with this photo's expression (its file stem, as the report names it)
     /// instead of the neutral identity.
     #[arg(long, value_name = "PHOTO")]
@@ -367,6 +372,7 @@ impl OutputArgs {
             space_noise: self.space_noise,
             expression_sigma: self.expression_sigma,
             expressions: !self.no_expressions,
+            outline: !self.no_outline,
             refine: !self.no_refine,
             deformation: self.deformation.clone(),
             spacing: self.spacing,
