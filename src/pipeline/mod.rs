@@ -758,6 +758,9 @@ fn space_face(
             fit_options.expression_sigma.unwrap_or_default()
         ));
     }
+    if fit_options.outline {
+        shape.push_str(", the jaw's points measured on each photo's outline of the face");
+    }
     let mut face = match options.expression_of {
         None => space.face(reference, &fit.weights)?,
         Some(photo) => {

@@ -1101,6 +1101,12 @@ fn the_jaw_points_are_fitted_on_the_faces_outline() {
         (squares.iter().sum::<f64>() / squares.len() as f64).sqrt()
     };
     let (with, without) = (run(true), run(false));
+    // The report says how the jaw's points were measured.
+    let shape = |result: &splineface::pipeline::Reconstruction| {
+        result.report_file(&result.output_mesh(), 0.0).surface.shape
+    };
+    assert!(shape(&with).contains("outline"), "{}", shape(&with));
+    assert!(!shape(&without).contains("outline"), "{}", shape(&without));
     // Measured: 3.3 against 7.8 px.
     assert!(
         jaw(&with) < 0.6 * jaw(&without),
