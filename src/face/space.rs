@@ -627,7 +627,7 @@ pub const PLAUSIBLE_SIGMAS: Real = 3.0;
 /// photo-realistic evaluation's mean ratios to the mean face by at most 0.01 (`tools/photo_eval
 /// --ict-subjects 6 --seeds 1 --counts 3,8`: 0.81 / 0.75 against 0.82 / 0.75, one set of the 16
 /// by 0.04) and the synthetic one's from 0.563 to 0.556 (`tools/eval`, seed 8), for 1.45× the
-/// fit's time (35 photos: 30 against 21 ms).
+/// fit's time (35 photos: 31 against 23.5 ms, `cargo bench --bench depth -- "face space"`).
 pub const OUTLINE_ROUNDS: usize = 1;
 
 /// Options of [`FaceSpace::fit_photos`].
@@ -706,9 +706,10 @@ impl FaceSpace {
         // With the outline, each photo's jaw points are first measured against the mean face's
         // outline in its starting pose, then against the fitted face's, [`OUTLINE_ROUNDS`]
         // fits in all.
-        let outline = match options.outline {
-            true => Some(super::outline::Outline::new(self, !expression_modes.is_empty())?),
-            false => None,
+        let outline = if options.outline {
+            Some(super::outline::Outline::new(self, !expression_modes.is_empty())?)
+        } else {
+            None
         };
         let originals: Vec<Vec<Vector2<Real>>> = match outline {
             Some(_) => photos.iter().map(|p| p.targets.clone()).collect(),
