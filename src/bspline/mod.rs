@@ -57,7 +57,6 @@ pub use curve::BSplineCurve;
 pub use fit::{FitReport, FittedSurface, SurfaceFit};
 pub use inversion::{ClosestPoint, ClosestPoints, SAMPLES_PER_SPAN};
 pub use knots::{KnotVector, MAX_DEGREE};
-pub(crate) use space::sample_modes;
 pub use space::{SpaceSamples, SurfaceSpace};
 pub use step::{StepOptions, encode_step};
 pub use surface::{BSplineSurface, BasisMatrix, SurfaceDerivatives, SurfaceFileError};

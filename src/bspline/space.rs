@@ -146,22 +146,6 @@ impl SpaceSamples {
     }
 }
 
-/// Each displacement grid of `modes` at the rows of `basis` (one basis matrix for any number of
-/// grids on the same knots).
-pub(crate) fn sample_modes(modes: &[Vec<Vector3<Real>>], basis: &BasisMatrix) -> Vec<Vec<Vector3<Real>>> {
-    modes
-        .iter()
-        .map(|mode| {
-            (0..basis.nrows())
-                .map(|r| {
-                    let (cols, vals) = basis.row(r);
-                    cols.iter().zip(vals).map(|(&c, &v)| mode[c] * v).sum()
-                })
-                .collect()
-        })
-        .collect()
-}
-
 impl SurfaceSpace {
     /// A space from its base surface and displacement grids, each row-major like the base's
     /// control grid (`rows·cols` vectors).
@@ -312,9 +296,21 @@ impl SurfaceSpace {
     }
 
     fn sample_with(&self, basis: &BasisMatrix) -> SpaceSamples {
+        let modes = self
+            .modes
+            .iter()
+            .map(|mode| {
+                (0..basis.nrows())
+                    .map(|r| {
+                        let (cols, vals) = basis.row(r);
+                        cols.iter().zip(vals).map(|(&c, &v)| mode[c] * v).sum()
+                    })
+                    .collect()
+            })
+            .collect();
         SpaceSamples {
             base: basis.mul(self.base.control_points()),
-            modes: sample_modes(&self.modes, basis),
+            modes,
         }
     }
 

@@ -8,7 +8,7 @@
 //! face reads the turn as a narrower face; the depth stage gives them a tenth of the other
 //! points' weight for that reason.
 //!
-//! [`Outline`] finds where a member of a face space shows its outline to a camera: along the
+//! [`Outline`] finds where a face space's mean face shows its outline to a camera: along the
 //! surface's line through each such point at the point's height, from the point in to the
 //! middle of the face, the place the camera sees farthest toward the point's side. On a
 //! frontal view, or on the side turned toward the camera, that is the point's own place; on
@@ -20,7 +20,6 @@ use nalgebra::{Matrix2x3, Point3, Vector2, Vector3};
 use super::FaceError;
 use super::space::FaceSpace;
 use crate::Real;
-use crate::bspline::{SpaceSamples, sample_modes};
 use crate::structure::POINT_COUNT;
 
 /// The structure's contour points that a landmarker puts on the outline (iBUG 0, 2, 4 and 12,
@@ -37,30 +36,26 @@ const LATTICE: usize = 128;
 /// the weights to 0.002).
 const LINE: usize = 96;
 
-/// The candidate outline places of a face space: per point of [`OUTLINE_POINTS`], samples
-/// along the surface's line through it, with each identity and expression mode's
-/// displacement there.
+/// The candidate outline places of a face space's mean face: per point of
+/// [`OUTLINE_POINTS`], the surface's samples along its line, the point's own place first.
 #[derive(Debug, Clone)]
 pub(crate) struct Outline {
-    identity: SpaceSamples,
-    /// Each expression mode's displacement of the samples, when the fit has expressions.
-    expressions: Option<Vec<Vec<Vector3<Real>>>>,
+    lines: Vec<Vec<Point3<Real>>>,
 }
 
-/// Where a member shows its outline to one camera: per point of [`OUTLINE_POINTS`], the
+/// Where a face shows its outline to one camera: per point of [`OUTLINE_POINTS`], the
 /// surface's point at the point's own place and the one on the outline.
 pub(crate) type OutlinePlaces = [(Point3<Real>, Point3<Real>); OUTLINE_POINTS.len()];
 
 impl Outline {
     /// The lines of `space`'s mean face: each point's place on the surface is the nearest
     /// sample of a [`LATTICE`]² lattice of its parameter square, and its line runs at that
-    /// place's `v` from its `u` to the middle of the `u` range; with the expression modes'
-    /// displacements when `expressions`.
+    /// place's `v` from its `u` to the middle of the `u` range.
     ///
     /// # Errors
-    /// [`FaceError::Space`] if the space's surface cannot be sampled (it can: it was checked
+    /// [`FaceError::Space`] if the space's surface cannot be evaluated (it can: it was checked
     /// when the space was made).
-    pub(crate) fn new(space: &FaceSpace, expressions: bool) -> Result<Self, FaceError> {
+    pub(crate) fn new(space: &FaceSpace) -> Result<Self, FaceError> {
         let base = space.surfaces().base();
         let (u0, u1) = base.domain_u();
         let (v0, v1) = base.domain_v();
@@ -73,101 +68,78 @@ impl Outline {
             .collect();
         let points = base.eval_many(&lattice).map_err(sampling)?;
         let structure = &space.structure_samples().base;
-        let middle = 0.5 * (u0 + u1);
-        let mut params = Vec::with_capacity(OUTLINE_POINTS.len() * LINE);
-        for &j in &OUTLINE_POINTS {
-            let nearest = points
-                .iter()
-                .map(|p| (p - structure[j]).norm_squared())
-                .enumerate()
-                .min_by(|a, b| a.1.total_cmp(&b.1))
-                .map_or(0, |(k, _)| k);
-            let [u, v] = lattice[nearest];
-            params.extend((0..LINE).map(|s| [u + (middle - u) * s as Real / LINE as Real, v]));
-        }
-        let basis = base.basis_matrix(&params).map_err(sampling)?;
-        let identity = SpaceSamples {
-            base: basis.mul(base.control_points()),
-            modes: sample_modes(space.surfaces().modes(), &basis),
-        };
-        let expressions = expressions.then(|| sample_modes(&space.expressions().grid, &basis));
-        Ok(Outline {
-            identity,
-            expressions,
-        })
+        let lines = OUTLINE_POINTS
+            .iter()
+            .map(|&j| {
+                let nearest = points
+                    .iter()
+                    .map(|p| (p - structure[j]).norm_squared())
+                    .enumerate()
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .map_or(0, |(k, _)| k);
+                let [u, v] = lattice[nearest];
+                line(base, (u, v)).map_err(sampling)
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Outline { lines })
     }
 
-    /// The lines' samples on the member with identity `weights` (before any expression).
-    pub(crate) fn member(&self, weights: &[Real]) -> Vec<Point3<Real>> {
-        self.identity.member(weights)
-    }
-
-    /// Where `member` ([`Outline::member`]) with expression weights `expression` (empty for
-    /// none) shows its outline to a camera whose image plane is spanned by the rows of `rows`
-    /// (`P R`, any scale): per point, its own place and the sample of its line seen farthest
-    /// toward its side.
-    pub(crate) fn places(
-        &self,
-        member: &[Point3<Real>],
-        expression: &[Real],
-        rows: &Matrix2x3<Real>,
-    ) -> OutlinePlaces {
-        // Seen along the face's x axis in the image: outward is along it on the left side
-        // (x > 0) and against it on the right; `(rows p) · (rows x̂) = p · (rowsᵀ rows x̂)`.
-        let axis: Vector3<Real> = rows.transpose() * (rows * Vector3::x());
-        let shifts: Vec<(Real, &Vec<Vector3<Real>>)> = match &self.expressions {
-            Some(modes) => expression
-                .iter()
-                .zip(modes)
-                .filter(|(w, _)| **w != 0.0)
-                .map(|(w, m)| (*w, m))
-                .collect(),
-            None => Vec::new(),
-        };
-        let at = |s: usize| {
-            let mut p = member[s];
-            for (w, mode) in &shifts {
-                p += mode[s] * *w;
-            }
-            p
-        };
-        std::array::from_fn(|n| farthest_out((n * LINE..(n + 1) * LINE).map(at), &axis))
+    /// Where the mean face shows its outline to a camera whose image plane is spanned by the
+    /// rows of `rows` (`P R`, any scale): per point, its own place and the sample of its line
+    /// seen farthest toward its side.
+    pub(crate) fn places(&self, rows: &Matrix2x3<Real>) -> OutlinePlaces {
+        let axis = outward_axis(rows);
+        std::array::from_fn(|n| farthest_out(&self.lines[n], &axis))
     }
 }
 
+/// [`LINE`] samples of `surface` along its line at `v`, from `u` to the middle of the `u`
+/// range.
+fn line(
+    surface: &crate::bspline::BSplineSurface,
+    (u, v): (Real, Real),
+) -> Result<Vec<Point3<Real>>, crate::bspline::BSplineError> {
+    let (u0, u1) = surface.domain_u();
+    let middle = 0.5 * (u0 + u1);
+    let params: Vec<[Real; 2]> = (0..LINE)
+        .map(|s| [u + (middle - u) * s as Real / LINE as Real, v])
+        .collect();
+    Ok(surface.basis_matrix(&params)?.mul(surface.control_points()))
+}
+
+/// The face's x axis as a camera whose image plane is spanned by the rows of `rows` sees it:
+/// outward is along it on the left side (x > 0) and against it on the right;
+/// `(rows p) · (rows x̂) = p · (rowsᵀ rows x̂)`.
+fn outward_axis(rows: &Matrix2x3<Real>) -> Vector3<Real> {
+    rows.transpose() * (rows * Vector3::x())
+}
+
 /// The first of a line's points (a point's own place) and the one seen farthest toward its side
-/// along `axis` (`rowsᵀ rows x̂` of the camera).
-fn farthest_out(
-    mut line: impl Iterator<Item = Point3<Real>>,
-    axis: &Vector3<Real>,
-) -> (Point3<Real>, Point3<Real>) {
-    let own = line.next().expect("a line has samples");
+/// along `axis` ([`outward_axis`]).
+fn farthest_out(line: &[Point3<Real>], axis: &Vector3<Real>) -> (Point3<Real>, Point3<Real>) {
+    let own = line[0];
     let side = own.x.signum();
     let outward = |p: &Point3<Real>| side * axis.dot(&p.coords);
-    let outline = line.fold(own, |best, p| if outward(&p) > outward(&best) { p } else { best });
+    let outline = line[1..].iter().fold(
+        own,
+        |best, &p| if outward(&p) > outward(&best) { p } else { best },
+    );
     (own, outline)
 }
 
 /// How far a landmarker sees the point of `surface` at `(u, v)` moved onto the outline by a
 /// camera whose image plane is spanned by the rows of `rows`: the outline's place along the
 /// surface's line at `v` from `u` to the middle of the `u` range (the rule [`Outline`] fits
-/// by, on a fixed surface), less the point's own place.
+/// by), less the point's own place.
 ///
 /// # Errors
-/// As [`crate::bspline::BSplineSurface::eval_many`], for a parameter outside the domain.
+/// As [`crate::bspline::BSplineSurface::basis_matrix`], for a parameter outside the domain.
 pub(crate) fn outline_move(
     surface: &crate::bspline::BSplineSurface,
     (u, v): (Real, Real),
     rows: &Matrix2x3<Real>,
 ) -> Result<Vector3<Real>, crate::bspline::BSplineError> {
-    let (u0, u1) = surface.domain_u();
-    let middle = 0.5 * (u0 + u1);
-    let params: Vec<[Real; 2]> = (0..LINE)
-        .map(|s| [u + (middle - u) * s as Real / LINE as Real, v])
-        .collect();
-    let points = surface.eval_many(&params)?;
-    let axis: Vector3<Real> = rows.transpose() * (rows * Vector3::x());
-    let (own, outline) = farthest_out(points.into_iter(), &axis);
+    let (own, outline) = farthest_out(&line(surface, (u, v))?, &outward_axis(rows));
     Ok(outline - own)
 }
 

@@ -620,16 +620,6 @@ pub struct PhotoSpaceFit {
 /// prior puts 0.3% of faces there).
 pub const PLAUSIBLE_SIGMAS: Real = 3.0;
 
-/// The fits of [`FaceSpace::fit_photos`] with the face's outline ([`PhotoFitOptions::outline`]):
-/// the first against the mean face's outline, the others against the last fit's.
-///
-/// One, by measurement: a second fit against the fitted face's outline moved the
-/// photo-realistic evaluation's mean ratios to the mean face by at most 0.01 (`tools/photo_eval
-/// --ict-subjects 6 --seeds 1 --counts 3,8`: 0.81 / 0.75 against 0.82 / 0.75, one set of the 16
-/// by 0.04) and the synthetic one's from 0.563 to 0.556 (`tools/eval`, seed 8), for 1.45× the
-/// fit's time (35 photos: 31 against 23.5 ms, `cargo bench --bench depth -- "face space"`).
-pub const OUTLINE_ROUNDS: usize = 1;
-
 /// Options of [`FaceSpace::fit_photos`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PhotoFitOptions {
@@ -669,14 +659,19 @@ impl FaceSpace {
     ///
     /// With [`PhotoFitOptions::outline`], the jaw points off the chin are measured against the
     /// face's outline as each photo sees it, where a landmarker puts them: for each photo, the
-    /// place `Oⱼ` where the face shows its outline at each such point's height
-    /// ([`super::OUTLINE_POINTS`]) gives the shift `b P R (Pⱼ − Oⱼ)` added to the photo's point
-    /// (`Pⱼ` the surface at the point's own place), so that its residual against `Sⱼ` is its
-    /// residual against `Sⱼ` moved along the surface to the outline. The first fit takes the
-    /// mean face's outline in each photo's starting pose; each of the others (to
-    /// [`OUTLINE_ROUNDS`] fits) the last fit's face, pose and expression, from where it
-    /// stopped. The shifts hold still within a fit: its derivatives are those of `Sⱼ`, which
-    /// moves with the modes much as `Oⱼ` does.
+    /// place `Oⱼ` where the mean face shows its outline in the photo's starting pose at each
+    /// such point's height ([`super::OUTLINE_POINTS`]) gives the shift `b P R (Pⱼ − Oⱼ)` added
+    /// to the photo's point (`Pⱼ` the surface at the point's own place), so that its residual
+    /// against `Sⱼ` is its residual against `Sⱼ` moved along the surface to the outline. The
+    /// shifts hold still during the fit: its derivatives are those of `Sⱼ`, which moves with
+    /// the modes much as `Oⱼ` does.
+    ///
+    /// The mean face's outline in the starting pose, by measurement: a second fit against the
+    /// fitted face's outline, pose and expression moved the photo-realistic evaluation's mean
+    /// ratios to the mean face by at most 0.01 (`tools/photo_eval --ict-subjects 6 --seeds 1
+    /// --counts 3,8`: 0.81 / 0.75 against 0.82 / 0.75, one set of the 16 by 0.04) and the
+    /// synthetic one's from 0.563 to 0.556 (`tools/eval`, seed 8), for 1.3× the fit's time
+    /// (35 photos: 31 against 23.5 ms, `cargo bench --bench depth -- "face space"`).
     ///
     /// # Errors
     /// [`FaceError::Option`] for no views, a view without 40 finite points, a noise or an
@@ -703,35 +698,24 @@ impl FaceSpace {
 
         let mut photos = self.starting_photos(views, point_weights, total, expression_modes.len())?;
         let mut weights = vec![0.0; self.mode_count()];
-        // With the outline, each photo's jaw points are first measured against the mean face's
-        // outline in its starting pose, then against the fitted face's, [`OUTLINE_ROUNDS`]
-        // fits in all.
-        let outline = if options.outline {
-            Some(super::outline::Outline::new(self, !expression_modes.is_empty())?)
-        } else {
-            None
-        };
-        let originals: Vec<Vec<Vector2<Real>>> = match outline {
-            Some(_) => photos.iter().map(|p| p.targets.clone()).collect(),
-            None => Vec::new(),
-        };
-        let mut outline_shifts = Vec::new();
-        let mut iterations = 0;
-        for _ in 0..if outline.is_some() { OUTLINE_ROUNDS } else { 1 } {
-            if let Some(outline) = &outline {
-                let member = outline.member(&weights);
-                outline_shifts.clear();
-                for (photo, original) in photos.iter_mut().zip(&originals) {
+        let outline_shifts = if options.outline {
+            let outline = super::outline::Outline::new(self)?;
+            photos
+                .iter_mut()
+                .map(|photo| {
                     let rows: nalgebra::Matrix2x3<Real> =
                         photo.rotation.matrix().fixed_rows::<2>(0) * photo.relative_scale;
-                    let places = outline.places(&member, &photo.expression, &rows);
-                    let shifts = super::outline::outline_shifts(&places, &rows);
-                    photo.targets = original.iter().zip(&shifts).map(|(t, s)| t + s).collect();
-                    outline_shifts.push(shifts.iter().map(|s| s * photo.unit).collect());
-                }
-            }
-            iterations += problem.minimise(&mut weights, &mut photos);
-        }
+                    let shifts = super::outline::outline_shifts(&outline.places(&rows), &rows);
+                    for (t, s) in photo.targets.iter_mut().zip(&shifts) {
+                        *t += s;
+                    }
+                    shifts.iter().map(|s| s * photo.unit).collect()
+                })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let iterations = problem.minimise(&mut weights, &mut photos);
         // Weights outside the prior's plausible range are held at its edge, and named.
         let mut held = Vec::new();
         for (k, (w, sigma)) in weights.iter_mut().zip(&self.sigma).enumerate() {
