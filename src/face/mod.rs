@@ -39,7 +39,8 @@ use crate::structure::POINT_COUNT;
 
 pub use outline::OUTLINE_POINTS;
 pub use refine::{
-    ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement, Window,
+    ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement,
+    TYPICAL_FOCAL, Window,
 };
 pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};

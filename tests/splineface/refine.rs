@@ -262,6 +262,14 @@ fn the_photos_pull_the_face_toward_the_member_they_show() {
             after < 0.7 * before,
             "{window:?}: the refined face is nearer the member: {after:.3} against the landmark fit's {before:.3} (the mean face {mean:.3}) units"
         );
+        // The cameras are 700 units away (the focal length 2.7 times the photos' longer side,
+        // where the prior expects 1.2): their distances come out within a factor of 1.5.
+        let distances: Vec<Real> = refined.cameras.iter().map(|c| 1.0 / c.perspective).collect();
+        eprintln!("{window:?}: camera distances {distances:?}");
+        assert!(
+            distances.iter().all(|d| (700.0 / 1.5..700.0 * 1.5).contains(d)),
+            "{window:?}: camera distances {distances:?}, 700 units in truth"
+        );
         assert_eq!(refined.coverage.len(), 3);
         assert!(
             refined.coverage.iter().all(|&c| c > 0.5),
