@@ -128,13 +128,6 @@ pub struct RefineOptions {
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
     /// that helped and on those that did not alike.
     pub landmark_slack: Real,
-    /// How far (canonical units) a photo's expression may move a part of the face before the
-    /// photo's view of it counts half: each photo's consistency weight at a sample is divided
-    /// by `1 + (|Gₛ eᵢ| / spread)²`, `Gₛ eᵢ` the photo's expression's displacement there (as
-    /// the landmark fit gave it). Where a smile or an open jaw moves the face, the identity
-    /// and the expression explain the same pixels, and an expression the landmarks caught
-    /// only in part would be taken into the identity. Infinite: every view counts fully.
-    pub expression_spread: Real,
 }
 
 impl Default for RefineOptions {
@@ -230,7 +223,6 @@ impl Default for RefineOptions {
             min_gain: 0.15,
             photo_weights: false,
             landmark_slack: Real::INFINITY,
-            expression_spread: Real::INFINITY,
         }
     }
 }
@@ -1197,12 +1189,6 @@ impl Level<'_> {
                 }
                 let weight = self.photo_weights[i];
                 seen.iter_mut().for_each(|c| *c *= weight);
-                let spread = self.options.expression_spread;
-                if let (true, Some(moved)) = (spread.is_finite(), self.samples.expression.get(i)) {
-                    for (c, d) in seen.iter_mut().zip(moved) {
-                        *c /= 1.0 + (d.norm() / spread).powi(2);
-                    }
-                }
                 seen
             })
             .collect()
@@ -2070,13 +2056,6 @@ fn check_refine(
         if !positive(v) {
             return bad(name, v.to_string(), "positive and finite");
         }
-    }
-    if options.expression_spread.is_nan() || options.expression_spread <= 0.0 {
-        return bad(
-            "expression spread",
-            options.expression_spread.to_string(),
-            "positive (infinite: off)",
-        );
     }
     Ok(())
 }

@@ -1176,24 +1176,6 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
-            "expression spread 2",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    expression_spread: 2.0,
-                    ..RefineOptions::default()
-                })
-            }),
-        ),
-        method(
-            "expression spread 1",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    expression_spread: 1.0,
-                    ..RefineOptions::default()
-                })
-            }),
-        ),
-        method(
             "refine orthographic",
             with(&|o| {
                 o.refine = Some(RefineOptions {
