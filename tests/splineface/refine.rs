@@ -279,6 +279,48 @@ fn the_photos_pull_the_face_toward_the_member_they_show() {
     }
 }
 
+/// A refinement that is turned down gives back the landmark fit as it stands: its weights, its
+/// scaled orthographic cameras (not the typical perspective the refinement started from),
+/// and the landmark RMS measured on them.
+#[test]
+fn a_refinement_turned_down_gives_back_the_landmark_fit() {
+    let scene = scene(&[1.5, -1.0, 1.0]);
+    let (weights, fit, views) = landmark_fit(&scene);
+    let options = RefineOptions {
+        levels: 1,
+        min_gain: 1.0,
+        ..RefineOptions::default()
+    };
+    let refined = scene
+        .space
+        .refine_photos(scene.reference, &fit, &views, &weights, &options)
+        .unwrap();
+    assert!(!refined.accepted, "{}", refined.note);
+    assert_eq!(refined.weights, fit.weights);
+    for (camera, (pose, offset)) in refined.cameras.iter().zip(&fit.poses) {
+        assert_eq!(camera.perspective, 0.0);
+        assert_eq!(camera.rotation, pose.rotation);
+        assert_eq!(camera.scale, pose.scale);
+        assert_eq!(camera.offset, offset.coords);
+    }
+    // The same landmark RMS as a refinement whose cameras stay orthographic throughout.
+    let orthographic = scene
+        .space
+        .refine_photos(
+            scene.reference,
+            &fit,
+            &views,
+            &weights,
+            &RefineOptions {
+                perspective: false,
+                ..options
+            },
+        )
+        .unwrap();
+    assert_eq!(refined.landmark_rms.0, orthographic.landmark_rms.0);
+    assert!(refined.disagreement.0 <= orthographic.disagreement.0);
+}
+
 #[test]
 fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
     let scene = scene(&[1.0]);
