@@ -1693,8 +1693,9 @@ impl Level<'_> {
 /// the photo's longer side: a photo's distance is poorly seen in it (a nearer camera and a
 /// deeper face look alike), so each `κ = 1/d` starts at, and is drawn toward, `s / f` with
 /// `f` this focal length, with a deviation of 0.7 of that (the private `typical_perspective`
-/// and `PERSPECTIVE_SPREAD`). 1.2 is between a phone's main camera (about 0.75: 26 mm in 35 mm terms) and a
-/// portrait lens (1.4–2: 50–70 mm); faces are mostly photographed at or above the former.
+/// and `PERSPECTIVE_SPREAD`). 1.2 is between a phone's main camera (about 0.75: 26 mm in
+/// 35 mm terms) and a portrait lens (1.4–2: 50–70 mm); faces are mostly photographed at or
+/// above the former.
 ///
 /// Measured by `tools/photo_eval` with `REFINE_DIAG` (every refinement kept; 80 sets of 2–16
 /// photos of the seven subjects; mean ratio of the error to the landmark fit's): with the
