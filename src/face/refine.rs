@@ -200,7 +200,7 @@ impl Default for RefineOptions {
     /// "default,landmarks only"`) it brought the mean ratio to the mean face for 2 / 3 / 4 /
     /// 8 / 16 photos from 0.87 / 0.80 / 0.78 / 0.76 / 0.71 (the former prior, threshold 0.2) to
     /// 0.87 / 0.78 / 0.76 / 0.75 / 0.70, and the mean ratio to the landmark fit from 0.861 (6
-    /// sets more than 2% worse than it, the worst 1.18×) to 0.850 (7, 1.12×).
+    /// sets more than 2% worse than it, the worst 1.18×) to 0.851 (6, 1.13×).
     ///
     /// No threshold keeps every
     /// set at least as good as the landmark fit with either: the refinement
