@@ -73,15 +73,22 @@ fn bench(c: &mut Criterion) {
     let space = reference.face_space().expect("the default carries a face space");
     let views: Vec<Vec<Point2<f64>>> = photos.iter().map(PhotoPoints::y_up).collect();
     let weights = splineface::structure::contour_weighted(DepthOptions::default().contour_weight);
-    let expressive = Some(splineface::pipeline::Shape::DEFAULT_EXPRESSION_SIGMA);
-    for (name, expression_sigma, outline) in [
+    let expressive = Some(splineface::face::ExpressionPrior::DEFAULT);
+    for (name, expressions, outline) in [
         ("face space (60 identity, 53 expression modes)", expressive, true),
+        (
+            "face space, each photo's expression on its own (the plain prior)",
+            Some(splineface::face::ExpressionPrior::independent(
+                splineface::face::ExpressionPrior::DEFAULT.sigma,
+            )),
+            true,
+        ),
         ("face space, jaw points fixed (no outline)", expressive, false),
         ("face space, neutral (60 identity modes)", None, true),
     ] {
         let options = splineface::face::PhotoFitOptions {
             noise: splineface::pipeline::Shape::DEFAULT_NOISE,
-            expression_sigma,
+            expressions,
             outline,
         };
         group.bench_function(name, |b| {

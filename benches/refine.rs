@@ -77,7 +77,7 @@ fn bench(c: &mut Criterion) {
     let weights = splineface::structure::contour_weighted(0.1);
     let fit_options = PhotoFitOptions {
         noise: splineface::pipeline::Shape::DEFAULT_NOISE,
-        expression_sigma: None,
+        expressions: None,
         outline: false,
     };
     let fit = space.fit_photos(&views, &weights, &fit_options).unwrap();

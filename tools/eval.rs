@@ -90,7 +90,7 @@ const LOCAL: Deformation = Deformation::Local {
 };
 const SPACE: Shape = Shape::Space {
     noise: Shape::DEFAULT_NOISE,
-    expressions: Some(Shape::DEFAULT_EXPRESSION_SIGMA),
+    expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
     outline: true,
 };
 
@@ -139,7 +139,7 @@ const METHODS: [Method; 7] = [
             true,
             Shape::Space {
                 noise: Shape::DEFAULT_NOISE,
-                expressions: Some(Shape::DEFAULT_EXPRESSION_SIGMA),
+                expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
                 outline: false,
             },
             LOCAL,

@@ -42,7 +42,9 @@ pub use refine::{
     ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement,
     TYPICAL_FOCAL, Window,
 };
-pub use space::{DenseFitOptions, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit};
+pub use space::{
+    DenseFitOptions, ExpressionPrior, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit,
+};
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 pub use texture::{
     AUTOMATIC_COVERAGE, AUTOMATIC_MAX_SIDE, AUTOMATIC_MIN_SIDE, FaceTexture, NO_PHOTO, TexelSource,

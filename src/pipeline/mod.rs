@@ -51,8 +51,8 @@ use crate::align::{
 };
 use crate::depth::{DepthError, DepthEstimate, DepthOptions, StructurePrior, estimate_depth};
 use crate::face::{
-    ClippedMesh, Deformation, FaceError, FaceSurface, FaceTexture, MeshOptions, RefineOptions, RefineView,
-    RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
+    ClippedMesh, Deformation, ExpressionPrior, FaceError, FaceSurface, FaceTexture, MeshOptions,
+    RefineOptions, RefineView, RefinedCamera, Refinement, TextureOptions, TexturePhoto, Units, bake_texture,
 };
 use crate::mesh::TriangleMesh;
 use crate::reference::ReferenceFace;
@@ -141,10 +141,10 @@ pub enum Shape {
     Space {
         /// `ε`, canonical units.
         noise: Real,
-        /// `τ`, the prior deviation of each photo's expression weights
-        /// ([`crate::face::PhotoFitOptions::expression_sigma`]), or `None` to take every
-        /// photo as neutral.
-        expressions: Option<Real>,
+        /// The prior of each photo's expression weights
+        /// ([`crate::face::PhotoFitOptions::expressions`]), or `None` to take every photo as
+        /// neutral.
+        expressions: Option<ExpressionPrior>,
         /// Measure the jaw points off the chin against the face's outline as each photo
         /// sees it ([`crate::face::PhotoFitOptions::outline`]); `false` ties them to fixed
         /// places of the face.
@@ -189,8 +189,9 @@ impl Shape {
     /// its mean face's error with its 8 given photos), but fits the landmarks' noise into
     /// more than twice as many expression weights and takes twice the iterations (the bench's 35
     /// photos: 16 against 8); `0.5` keeps every expression within 7% of the neutral photos'
-    /// error.
-    pub const DEFAULT_EXPRESSION_SIGMA: Real = 0.5;
+    /// error. (This table was measured with the plain, independent prior on an earlier
+    /// evaluation; [`ExpressionPrior`] measures the shared expression and the rate added since.)
+    pub const DEFAULT_EXPRESSION_SIGMA: Real = ExpressionPrior::DEFAULT.sigma;
 }
 
 impl Default for Shape {
@@ -210,6 +211,11 @@ impl Default for Shape {
     ///
     /// Per-photo expressions cost a little on neutral photos of faces the space describes well
     /// and keep the face when the photos show expressions ([`Shape::DEFAULT_EXPRESSION_SIGMA`]).
+    /// (Measured with the plain prior on the expressions; [`ExpressionPrior::DEFAULT`]'s shared
+    /// expression and rate since took the landmarks-only row of today's evaluation from
+    /// 0.94 / 0.91 / 0.90 / 0.89 / 0.89 to 0.93 / 0.90 / 0.89 / 0.89 / 0.88 and the refined
+    /// default's from 0.87 / 0.78 / 0.76 / 0.75 / 0.70 to 0.86 / 0.77 / 0.74 / 0.74 / 0.69,
+    /// `tools/results/photos.md`.)
     /// `ε = 4` was chosen with the earlier, alternating fit (ε = 2 / 4 / 8: 0.89 / 0.90 / 0.94
     /// with two photos, 1.03 / 0.90 / 0.89 on the scan's 8 photos): smaller `ε` follows the
     /// landmarks more and wins on faces the space describes well, but fits the landmarker's
@@ -217,7 +223,7 @@ impl Default for Shape {
     fn default() -> Self {
         Shape::Space {
             noise: Self::DEFAULT_NOISE,
-            expressions: Some(Self::DEFAULT_EXPRESSION_SIGMA),
+            expressions: Some(ExpressionPrior::DEFAULT),
             outline: true,
         }
     }
@@ -451,7 +457,7 @@ pub fn reconstruct(
                 space,
                 crate::face::PhotoFitOptions {
                     noise,
-                    expression_sigma: expressions,
+                    expressions,
                     outline,
                 },
             )
@@ -752,10 +758,15 @@ fn space_face(
     );
     let fitted_expressions = !fit.expression_names.is_empty();
     if fitted_expressions {
+        let prior = fit_options.expressions.unwrap_or_default();
         shape.push_str(&format!(
-            ", with each photo's expression ({} modes, deviation {})",
+            ", with each photo's expression ({} modes, deviation {}{}, rate {})",
             space.expressions().len(),
-            fit_options.expression_sigma.unwrap_or_default()
+            prior.sigma,
+            prior.shared_sigma.map_or(String::new(), |t| format!(
+                " around an expression the photos share of deviation {t}"
+            )),
+            prior.rate
         ));
     }
     if fit_options.outline {

@@ -111,7 +111,10 @@ impl Settings {
         let shape = match self.shape.as_str() {
             "space" => Shape::Space {
                 noise: self.space_noise,
-                expressions: self.expressions.then_some(self.expression_sigma),
+                expressions: self.expressions.then_some(crate::face::ExpressionPrior {
+                    sigma: self.expression_sigma,
+                    ..crate::face::ExpressionPrior::DEFAULT
+                }),
                 outline: self.outline,
             },
             "deformed" => Shape::Deformed,

@@ -5,7 +5,7 @@
 use std::sync::OnceLock;
 
 use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
-use splineface::face::{DenseFitOptions, FaceError, FaceSpace, PhotoFitOptions};
+use splineface::face::{DenseFitOptions, ExpressionPrior, FaceError, FaceSpace, PhotoFitOptions};
 use splineface::mesh::TriangleMesh;
 use splineface::reference::{ReferenceFace, ReferenceOptions, build_reference};
 use splineface::structure::POINT_COUNT;
@@ -56,7 +56,7 @@ fn fields(mesh: &TriangleMesh) -> Vec<Vec<Vector3<f64>>> {
 fn neutral(noise: f64) -> PhotoFitOptions {
     PhotoFitOptions {
         noise,
-        expression_sigma: None,
+        expressions: None,
         outline: false,
     }
 }
@@ -354,6 +354,86 @@ fn expressive_space() -> FaceSpace {
         .unwrap()
 }
 
+/// `n` views of the expressive space's member `identity` wearing `expression` in every photo,
+/// turned from −40° to 40°.
+fn views_with_expression(
+    space: &FaceSpace,
+    identity: &[f64],
+    expression: &[f64],
+    n: usize,
+) -> Vec<Vec<nalgebra::Point2<f64>>> {
+    use splineface::depth::Pose;
+    let shape = space.structure_with_expression(identity, expression).unwrap();
+    (0..n)
+        .map(|i| {
+            let yaw = -40.0 + 80.0 * i as f64 / (n - 1) as f64;
+            let pose = Pose::from_yaw_pitch_roll_degrees(yaw, 5.0 * (i % 3) as f64 - 5.0, 0.0, 3.0);
+            shape.iter().map(|p| pose.project(p)).collect()
+        })
+        .collect()
+}
+
+/// The fitted expression weight `mode` in every photo.
+fn fitted(
+    space: &FaceSpace,
+    views: &[Vec<nalgebra::Point2<f64>>],
+    noise: f64,
+    prior: ExpressionPrior,
+    mode: usize,
+) -> Vec<f64> {
+    let options = PhotoFitOptions {
+        noise,
+        expressions: Some(prior),
+        outline: false,
+    };
+    let fit = space.fit_photos(views, &[1.0; POINT_COUNT], &options).unwrap();
+    fit.expressions.iter().map(|e| e[mode]).collect()
+}
+
+#[test]
+fn a_shared_expression_keeps_a_smile_that_every_photo_shows() {
+    // Eight photos that all smile, under a prior tight enough to matter: independent, the
+    // smile pays its prior eight times and the fit shrinks it; around a shared expression it
+    // pays about once.
+    let space = expressive_space();
+    let views = views_with_expression(&space, &[0.5, -0.8, 0.3], &[0.6, 0.0], 8);
+    let independent = fitted(&space, &views, 5.0, ExpressionPrior::independent(0.5), 0);
+    let shared = fitted(
+        &space,
+        &views,
+        5.0,
+        ExpressionPrior {
+            shared_sigma: Some(0.5),
+            ..ExpressionPrior::independent(0.5)
+        },
+        0,
+    );
+    let error = |found: &[f64]| found.iter().map(|e| (e - 0.6).abs()).sum::<f64>() / found.len() as f64;
+    assert!(
+        error(&shared) < 0.5 * error(&independent),
+        "shared {shared:?} against independent {independent:?}"
+    );
+}
+
+#[test]
+fn the_expression_rate_keeps_a_weight_at_zero_until_the_points_pull_harder() {
+    // A faint smile in every photo: the plain prior fits it, the rate leaves it at exactly zero;
+    // a clear smile still comes through the rate, shrunk by little.
+    let space = expressive_space();
+    let rated = ExpressionPrior {
+        rate: 1.0,
+        ..ExpressionPrior::independent(0.5)
+    };
+    let faint = views_with_expression(&space, &[0.5, -0.8, 0.3], &[0.01, 0.0], 8);
+    let plain = fitted(&space, &faint, 1.0, ExpressionPrior::independent(0.5), 0);
+    assert!(plain.iter().all(|e| *e > 0.005), "{plain:?}");
+    let with_rate = fitted(&space, &faint, 1.0, rated, 0);
+    assert!(with_rate.iter().all(|e| *e == 0.0), "{with_rate:?}");
+    let clear = views_with_expression(&space, &[0.5, -0.8, 0.3], &[0.6, 0.0], 8);
+    let with_rate = fitted(&space, &clear, 1.0, rated, 0);
+    assert!(with_rate.iter().all(|e| (0.5..0.6).contains(e)), "{with_rate:?}");
+}
+
 #[test]
 fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
     use nalgebra::Point2;
@@ -381,7 +461,10 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
         .collect();
     let options = PhotoFitOptions {
         noise: 1e-6,
-        expression_sigma: Some(1e3),
+        expressions: Some(ExpressionPrior {
+            sigma: 1e3,
+            ..ExpressionPrior::DEFAULT
+        }),
         outline: false,
     };
     let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], &options).unwrap();
@@ -451,15 +534,30 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
         space.face(reference, &identity).unwrap().surface()
     );
     // Bad options.
-    let bad = PhotoFitOptions {
-        noise: 1.0,
-        expression_sigma: Some(0.0),
-        outline: false,
-    };
-    assert!(matches!(
-        space.fit_photos(&views, &[1.0; POINT_COUNT], &bad),
-        Err(FaceError::Option { .. })
-    ));
+    for prior in [
+        ExpressionPrior::independent(0.0),
+        ExpressionPrior {
+            shared_sigma: Some(f64::NAN),
+            ..ExpressionPrior::DEFAULT
+        },
+        ExpressionPrior {
+            rate: -1.0,
+            ..ExpressionPrior::DEFAULT
+        },
+    ] {
+        let bad = PhotoFitOptions {
+            noise: 1.0,
+            expressions: Some(prior),
+            outline: false,
+        };
+        assert!(
+            matches!(
+                space.fit_photos(&views, &[1.0; POINT_COUNT], &bad),
+                Err(FaceError::Option { .. })
+            ),
+            "{prior:?}"
+        );
+    }
     // Names must be one per field.
     let (mesh, reference) = fixture();
     let err = space
@@ -575,7 +673,7 @@ fn the_photo_fit_measures_the_jaw_against_the_faces_outline() {
     assert!(moved > 8.0, "the outline moves a jaw point {moved} px only");
     let options = |outline| PhotoFitOptions {
         noise: 1e-3,
-        expression_sigma: None,
+        expressions: None,
         outline,
     };
     let error = |fit: &splineface::face::PhotoSpaceFit| {

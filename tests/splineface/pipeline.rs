@@ -1081,7 +1081,7 @@ fn the_jaw_points_are_fitted_on_the_faces_outline() {
         let options = PipelineOptions {
             shape: Shape::Space {
                 noise: Shape::DEFAULT_NOISE,
-                expressions: Some(Shape::DEFAULT_EXPRESSION_SIGMA),
+                expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
                 outline,
             },
             refine: None,

@@ -215,7 +215,7 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
             &weights,
             &PhotoFitOptions {
                 noise: 4.0,
-                expression_sigma: None,
+                expressions: None,
                 outline: false,
             },
         )

@@ -28,7 +28,7 @@ use nalgebra::{Point2, Point3};
 use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{InnerFaceOptions, InnerFaceScore, inner_face_score};
-use splineface::face::{Deformation, MeanFace, MeshOptions, Units};
+use splineface::face::{Deformation, ExpressionPrior, MeanFace, MeshOptions, Units};
 use splineface::landmarker::ShapePredictor;
 use splineface::mesh::TriangleMesh;
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, Reconstruction, reconstruct};
@@ -1046,20 +1046,65 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("deformed", with(&|o| o.shape = Shape::Deformed)),
         method(
             "space ε2",
-            with(&|o| o.shape = space(2.0, Some(Shape::DEFAULT_EXPRESSION_SIGMA))),
+            with(&|o| o.shape = space(2.0, Some(ExpressionPrior::DEFAULT))),
         ),
         method(
             "space ε8",
-            with(&|o| o.shape = space(8.0, Some(Shape::DEFAULT_EXPRESSION_SIGMA))),
+            with(&|o| o.shape = space(8.0, Some(ExpressionPrior::DEFAULT))),
         ),
         method("neutral", with(&|o| o.shape = space(Shape::DEFAULT_NOISE, None))),
+        // The expression prior before the shared expression and the rate (ExpressionPrior).
+        method(
+            "expressions independent",
+            with(&|o| o.shape = space(Shape::DEFAULT_NOISE, Some(ExpressionPrior::independent(0.5)))),
+        ),
+        method(
+            "expressions not shared",
+            with(&|o| {
+                o.shape = space(
+                    Shape::DEFAULT_NOISE,
+                    Some(ExpressionPrior {
+                        shared_sigma: None,
+                        ..ExpressionPrior::DEFAULT
+                    }),
+                )
+            }),
+        ),
+        method(
+            "expressions no rate",
+            with(&|o| {
+                o.shape = space(
+                    Shape::DEFAULT_NOISE,
+                    Some(ExpressionPrior {
+                        rate: 0.0,
+                        ..ExpressionPrior::DEFAULT
+                    }),
+                )
+            }),
+        ),
         method(
             "expression τ0.25",
-            with(&|o| o.shape = space(Shape::DEFAULT_NOISE, Some(0.25))),
+            with(&|o| {
+                o.shape = space(
+                    Shape::DEFAULT_NOISE,
+                    Some(ExpressionPrior {
+                        sigma: 0.25,
+                        ..ExpressionPrior::DEFAULT
+                    }),
+                )
+            }),
         ),
         method(
             "expression τ1",
-            with(&|o| o.shape = space(Shape::DEFAULT_NOISE, Some(1.0))),
+            with(&|o| {
+                o.shape = space(
+                    Shape::DEFAULT_NOISE,
+                    Some(ExpressionPrior {
+                        sigma: 1.0,
+                        ..ExpressionPrior::DEFAULT
+                    }),
+                )
+            }),
         ),
         Method {
             vertex_structure: true,
