@@ -210,6 +210,11 @@ pub struct RefinementReport {
     pub disagreement_after: Real,
     /// Before.
     pub disagreement_before: Real,
+    /// The photos left out's disagreement with the others on the face the others refined
+    /// ([`crate::face::Refinement::held_out`]); `None` where the check did not run.
+    pub held_out_after: Option<Real>,
+    /// On the landmark fit's face.
+    pub held_out_before: Option<Real>,
     /// Iterations run.
     pub iterations: usize,
     /// The landmark RMS after, canonical units.
@@ -555,6 +560,8 @@ impl Reconstruction {
             coverage: r.coverage.clone(),
             disagreement_after: r.disagreement.1,
             disagreement_before: r.disagreement.0,
+            held_out_after: r.held_out.map(|h| h.1),
+            held_out_before: r.held_out.map(|h| h.0),
             iterations: r.iterations,
             landmark_rms_units_after: r.landmark_rms.1,
             landmark_rms_units_before: r.landmark_rms.0,

@@ -562,14 +562,23 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
                 "did not run".to_owned()
             } else {
                 format!(
-                    "{} (disagreement {} → {})",
+                    "{} (disagreement {} → {}{})",
                     if refinement["accepted"].as_bool() == Some(true) {
                         "accepted"
                     } else {
                         "not accepted"
                     },
                     number(refinement.get("disagreement_before"), 3),
-                    number(refinement.get("disagreement_after"), 3)
+                    number(refinement.get("disagreement_after"), 3),
+                    if refinement["held_out_before"].is_number() {
+                        format!(
+                            "; photos left out {} → {}",
+                            number(refinement.get("held_out_before"), 3),
+                            number(refinement.get("held_out_after"), 3)
+                        )
+                    } else {
+                        String::new()
+                    }
                 )
             },
         ),

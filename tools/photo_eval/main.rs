@@ -342,6 +342,17 @@ fn run_set(
                     r.landmark_rms.0,
                     r.landmark_rms.1
                 );
+                if let Some((b, a)) = r.held_out {
+                    eprintln!(
+                        "HELD\t{}\t{}\t{landmark_only:.4}\t{:.4}\t{:.4}\t{:.4}\t{b:.4}\t{a:.4}\t{}",
+                        set.subject,
+                        result.depth.photos.len(),
+                        s.distance.mean,
+                        r.disagreement.0,
+                        r.disagreement.1,
+                        set.label
+                    );
+                }
                 eprintln!(
                     "  subject {} × {}: {:.3} mm; {} ({ms:.0} ms); yaw:coverage {}; distance {}",
                     set.subject,
@@ -1216,6 +1227,27 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 o.refine = Some(RefineOptions {
                     min_gain: Real::NEG_INFINITY,
                     landmark_slack: Real::INFINITY,
+                    held_out: false,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine held-out",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    held_out: true,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine held-out ungated",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    min_gain: Real::NEG_INFINITY,
+                    held_out: true,
+                    min_held_out_gain: Real::NEG_INFINITY,
                     ..RefineOptions::default()
                 })
             }),
