@@ -1233,6 +1233,35 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
+            "refine iterations 8",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    iterations: 8,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine four levels",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    levels: 4,
+                    eye_pixels: 160.0,
+                    spacing: 1.0,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine spacing 1",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    spacing: 1.0,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
             "refine held-out",
             with(&|o| {
                 o.refine = Some(RefineOptions {
