@@ -702,6 +702,36 @@ mod tests {
         assert!(VIEWER.len() > 500_000, "the vendored viewer is missing");
     }
 
+    /// The refinement's line names the check on photos left out only where it ran.
+    #[test]
+    fn the_refinement_line_shows_the_photos_left_out_where_the_check_ran() {
+        let line = |held: Value| {
+            let report = serde_json::json!({
+                "surface": {"refinement": {
+                    "accepted": true,
+                    "disagreement_before": 0.5,
+                    "disagreement_after": 0.4,
+                    "held_out_before": held,
+                    "held_out_after": held.as_f64().map(|h| h - 0.02),
+                }}
+            });
+            let mut page = String::new();
+            summary(&mut page, &report, &Value::Null);
+            page
+        };
+        let checked = line(serde_json::json!(0.4));
+        assert!(
+            checked.contains("accepted (disagreement 0.500 → 0.400; photos left out 0.400 → 0.380)"),
+            "{checked}"
+        );
+        let unchecked = line(Value::Null);
+        assert!(
+            unchecked.contains("accepted (disagreement 0.500 → 0.400)"),
+            "{unchecked}"
+        );
+        assert!(!unchecked.contains("left out"), "{unchecked}");
+    }
+
     #[test]
     fn text_is_escaped() {
         assert_eq!(
