@@ -1760,32 +1760,19 @@ impl Level<'_> {
                 h[(t, t)] += d * d;
                 g[t] += d * perspective_residual(camera.perspective, centre);
             } else {
-                // κ stays 0: its row and column are the identity's, its gradient none.
-                h.row_mut(t).fill(0.0);
-                h.column_mut(t).fill(0.0);
-                h[(t, t)] = 1.0;
-                g[t] = 0.0;
+                // κ stays 0.
+                hold(&mut h, &mut g, t);
             }
         }
+        let held_face = (0..k).chain(field..n).filter(|_| self.face_held);
         let held_cameras = self
             .cameras_held
             .iter()
             .enumerate()
             .filter(|(_, held)| **held)
             .flat_map(|(i, _)| k + CAMERA * i..k + CAMERA * (i + 1));
-        let held_face = if self.face_held {
-            (0..k).chain(field..n)
-        } else {
-            (0..0).chain(0..0)
-        };
-        {
-            // Held unknowns get the identity's rows and columns and no gradient.
-            for t in held_face.chain(held_cameras) {
-                h.row_mut(t).fill(0.0);
-                h.column_mut(t).fill(0.0);
-                h[(t, t)] = 1.0;
-                g[t] = 0.0;
-            }
+        for t in held_face.chain(held_cameras) {
+            hold(&mut h, &mut g, t);
         }
         (h, g)
     }
@@ -1795,26 +1782,31 @@ impl Level<'_> {
     /// the others' weighted mean, and their summed weight (summed in the samples' order).
     fn held_out_error(&self, state: &State, held_out: &[bool]) -> (Real, Real) {
         let visibility = self.visibility(state);
-        let normalisers = self.normalisers(state, &visibility);
-        let placed = self.samples.placed(state);
-        (0..self.samples.len())
-            .into_par_iter()
-            .map(|s| {
-                let seen = self.seen(state, &placed, &visibility, &normalisers, s, false);
-                let (test, train): (Vec<&Seen>, Vec<&Seen>) = seen.iter().partition(|v| held_out[v.photo]);
-                if train.len() < 2 || test.is_empty() {
-                    return (0.0, 0.0);
-                }
-                let total: Real = train.iter().map(|v| v.weight).sum();
-                let mean = train.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
-                test.iter().fold((0.0, 0.0), |(sum, weight), v| {
-                    (sum + v.weight * (v.value - mean).powi(2), weight + v.weight)
-                })
+        // Every sample that counts is seen by three photos or more, so by two: per_sample's.
+        self.per_sample(state, &visibility, |seen, _, _| {
+            let (test, train): (Vec<&Seen>, Vec<&Seen>) = seen.iter().partition(|v| held_out[v.photo]);
+            if train.len() < 2 || test.is_empty() {
+                return (0.0, 0.0);
+            }
+            let total: Real = train.iter().map(|v| v.weight).sum();
+            let mean = train.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
+            test.iter().fold((0.0, 0.0), |(sum, weight), v| {
+                (sum + v.weight * (v.value - mean).powi(2), weight + v.weight)
             })
-            .collect::<Vec<_>>()
-            .into_iter()
-            .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+        })
+        .into_iter()
+        .flatten()
+        .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
+}
+
+/// Holds unknown `t` where it is in a Gauss-Newton step: its row and column of `h` become
+/// the identity's, its gradient none.
+fn hold(h: &mut DMatrix<Real>, g: &mut DVector<Real>, t: usize) {
+    h.row_mut(t).fill(0.0);
+    h.column_mut(t).fill(0.0);
+    h[(t, t)] = 1.0;
+    g[t] = 0.0;
 }
 
 /// The folds of [`RefineOptions::held_out`]: per fold, which photos it holds out. The photos
@@ -1977,7 +1969,6 @@ impl FaceSpace {
         check_refine(fit, views, options)?;
         let problem = self.problem(fit, views, point_weights, options);
         let (state, iterations, level) = self.run_levels(reference, &problem, options, None, false)?;
-
         let landmarks = &problem.landmarks;
         // The landmark fit as it stands: its own cameras, scaled orthographic (the
         // optimisation starts from them with a typical perspective).
@@ -2010,7 +2001,7 @@ impl FaceSpace {
         let disagreement = (before_rms, after_rms);
         // The check on photos left out costs about as much as the refinement again: it runs
         // only where the refinement would be kept without it.
-        let held_out = if options.held_out && 1.0 - after_rms / before_rms >= options.min_gain {
+        let held_out = if options.held_out && fall(disagreement) >= options.min_gain {
             self.held_out_check(reference, &problem, options)?
         } else {
             None
@@ -2361,6 +2352,11 @@ impl Level<'_> {
     }
 }
 
+/// The relative fall of a disagreement `(before, after)`.
+fn fall((before, after): (Real, Real)) -> Real {
+    1.0 - after / before
+}
+
 /// Whether the refined face is kept, and why: the photos must agree better by
 /// [`RefineOptions::min_gain`] and the landmarks stay within [`RefineOptions::landmark_slack`].
 fn verdict(
@@ -2369,8 +2365,7 @@ fn verdict(
     held_out: Option<(Real, Real)>,
     options: &RefineOptions,
 ) -> (bool, String) {
-    let gain = 1.0 - disagreement.1 / disagreement.0;
-    let held_out_gain = held_out.map(|(b, a)| 1.0 - a / b);
+    let gain = fall(disagreement);
     // A NaN gain (no photo pair saw the face) keeps the landmark fit too.
     if gain.is_nan() || gain < options.min_gain {
         (
@@ -2380,8 +2375,8 @@ fn verdict(
                 disagreement.0, disagreement.1
             ),
         )
-    } else if let (Some(held_gain), Some((b, a))) = (held_out_gain, held_out)
-        && held_gain < options.min_held_out_gain
+    } else if let Some((b, a)) = held_out
+        && fall((b, a)) < options.min_held_out_gain
     {
         (
             false,
@@ -2500,9 +2495,6 @@ mod tests {
     /// The separable blur against the Gaussian's definition: every output pixel the
     /// normalised two-dimensional kernel's weighted sum of the input, borders clamped
     /// (odd sizes, a kernel wider than the image, and a one-pixel image included).
-    /// The separable area sampling against its definition, the mean of `k × k` bilinear
-    /// samples per crop pixel, with crops reaching past every border of the photo (clamped)
-    /// and factors from 1 (one sample) to 1/5.
     /// The folds deal the photos out in order of yaw: every fold holds out photos from both
     /// sides, each photo is held out exactly once, and three photos are left out one at a
     /// time; two have no folds.
@@ -2535,6 +2527,9 @@ mod tests {
         assert!(folds(&cameras[..2]).is_empty());
     }
 
+    /// The separable area sampling against its definition, the mean of `k × k` bilinear
+    /// samples per crop pixel, with crops reaching past every border of the photo (clamped)
+    /// and factors from 1 (one sample) to 1/5.
     #[test]
     fn area_sampling_is_the_mean_of_its_bilinear_samples() {
         let (w, h) = (53, 41);
