@@ -490,6 +490,35 @@ where
     Ok(bytes)
 }
 
+/// The quality [`encode_jpeg`] writes photographs at (the report page's too): below 90,
+/// `jpeg-encoder` halves the colour's resolution both ways (4:2:0, as cameras do), which
+/// makes the encoding about twice as fast; lines drawn on a photo keep their brightness at full
+/// resolution.
+pub const JPEG_QUALITY: u8 = 85;
+
+/// An RGB image as JPEG bytes at `quality` (1–100, by `jpeg-encoder`, which took half the time
+/// of `image`'s encoder): the form for photographs and pictures drawn on them.
+///
+/// # Errors
+/// [`EncodeError`] for an image wider or taller than JPEG's 65,535 pixels.
+///
+/// # Examples
+/// ```
+/// let image = image::RgbImage::from_pixel(4, 3, image::Rgb([200, 120, 40]));
+/// let jpeg = splineface::io::encode_jpeg(&image, 90).unwrap();
+/// assert!(jpeg.starts_with(&[0xFF, 0xD8, 0xFF]));
+/// ```
+pub fn encode_jpeg(image: &image::RgbImage, quality: u8) -> Result<Vec<u8>, EncodeError> {
+    let too_large = || EncodeError::new("JPEG", "an image wider or taller than 65,535 pixels");
+    let width = u16::try_from(image.width()).map_err(|_| too_large())?;
+    let height = u16::try_from(image.height()).map_err(|_| too_large())?;
+    let mut bytes = Vec::new();
+    jpeg_encoder::Encoder::new(&mut bytes, quality)
+        .encode(image.as_raw(), width, height, jpeg_encoder::ColorType::Rgb)
+        .map_err(|e| EncodeError::new("JPEG", e))?;
+    Ok(bytes)
+}
+
 /// The FNV-1a 64-bit hash of `bytes`: the identity of an input file's bytes in fingerprints,
 /// compact models and reference sources (fast and stable; not a cryptographic hash).
 pub fn fnv1a64(bytes: &[u8]) -> u64 {

@@ -1096,50 +1096,61 @@ fn photo_views(
 /// Every texel's colour, the weighted mean of the photos that see it (weights to the power
 /// `p`, colours times their photo's gain), with its best weight and that photo. Each photo's
 /// colour is sampled here, where its weight is positive, rather than held for the whole atlas.
+///
+/// The atlas is blended in bands of [`BLEND_ROWS`] rows, and each band photo by photo: a band
+/// reads a small part of each photo, which stays in the cache while the band's texels take it,
+/// where a texel after texel pass reads every photo at once (on `lps-head`'s photos-8, seven
+/// photos of 2.7 MB: the blend took 1.6 times as long). Each texel still sums its photos in
+/// their order, so the colours are the same to the last bit.
 fn blend(
     views: &[PhotoView],
     (photos, nodes, table): (&[TexturePhoto<'_>], &Nodes, &[f32; 256]),
     gains: &[[Real; 3]],
     p: Real,
 ) -> Vec<Blended> {
-    (0..nodes.side * nodes.side)
-        .into_par_iter()
-        .map(|k| {
-            let (mut sum, mut total, mut best, mut dominant) =
-                ([0.0 as Real; 3], 0.0 as Real, 0.0f32, NO_PHOTO);
-            let corners = nodes.corners(k);
+    let side = nodes.side;
+    let mut blended = vec![Blended::default(); side * side];
+    blended
+        .par_chunks_mut(BLEND_ROWS * side)
+        .enumerate()
+        .for_each(|(band, out)| {
+            let first = band * BLEND_ROWS * side;
+            let mut sums = vec![([0.0 as Real; 3], 0.0 as Real); out.len()];
             for (i, (view, photo)) in views.iter().zip(photos).enumerate() {
-                let w = view.weights[k];
-                if w <= 0.0 {
-                    continue;
-                }
-                if w > best {
-                    best = w;
-                    dominant = i as u16;
-                }
-                let wp = power(w as Real, p);
-                let c = view.colour(corners, photo.image, table);
-                for ch in 0..3 {
-                    sum[ch] += wp * gains[i][ch] * c[ch] as Real;
-                }
-                total += wp;
-            }
-            if total > 0.0 {
-                Blended {
-                    colour: sum.map(|s| (s / total) as f32),
-                    best,
-                    dominant,
-                    total: total as f32,
-                }
-            } else {
-                Blended {
-                    dominant: NO_PHOTO,
-                    ..Blended::default()
+                let weights = &view.weights[first..first + out.len()];
+                for (d, ((b, (sum, total)), &w)) in out.iter_mut().zip(&mut sums).zip(weights).enumerate() {
+                    if w <= 0.0 {
+                        continue;
+                    }
+                    if w > b.best {
+                        b.best = w;
+                        b.dominant = i as u16;
+                    }
+                    let wp = power(w as Real, p);
+                    let c = view.colour(nodes.corners(first + d), photo.image, table);
+                    for ch in 0..3 {
+                        sum[ch] += wp * gains[i][ch] * c[ch] as Real;
+                    }
+                    *total += wp;
                 }
             }
-        })
-        .collect()
+            for (b, (sum, total)) in out.iter_mut().zip(&sums) {
+                if *total > 0.0 {
+                    b.colour = sum.map(|s| (s / total) as f32);
+                    b.total = *total as f32;
+                } else {
+                    *b = Blended {
+                        dominant: NO_PHOTO,
+                        ..Blended::default()
+                    };
+                }
+            }
+        });
+    blended
 }
+
+/// The rows of the atlas blended together ([`blend`]).
+const BLEND_ROWS: usize = 8;
 
 /// Each photo's share of the blend, normalised to sum to 1 (0 each when nothing was seen).
 fn photo_shares(views: &[PhotoView], blended: &[Blended], p: Real, m: usize) -> Vec<Real> {

@@ -632,7 +632,7 @@ fn edit_report(
     Ok(())
 }
 
-/// `overlays/NAME.png` for every record with a photo ([`crate::report::draw_overlay`]), and
+/// `overlays/NAME.jpg` for every record with a photo ([`crate::report::draw_overlay`]), and
 /// `NAME.pts` in `landmark_folder` for every detected one; the overlays of a reconstruction's
 /// photos carry its fitted points and each photo's fate. A photo whose overlay cannot be
 /// encoded gets a warning instead.
@@ -706,9 +706,9 @@ pub(crate) fn photo_files(
                 landmarks: &record.landmarks,
                 fitted,
             });
-            match crate::io::encode_png(&picture) {
-                Ok(png) => {
-                    files.push((Path::new("overlays").join(format!("{}.png", record.name)), png));
+            match crate::io::encode_jpeg(&picture, crate::io::JPEG_QUALITY) {
+                Ok(jpeg) => {
+                    files.push((Path::new("overlays").join(format!("{}.jpg", record.name)), jpeg));
                     (files, None)
                 }
                 Err(e) => (files, Some(format!("{}: its overlay could not be encoded: {e}", record.name))),
@@ -731,7 +731,7 @@ pub struct LandmarkedPhotos {
     pub lines: Vec<String>,
     /// The files, `(path, bytes)`: `NAME.pts` for each landmarked photo (where `reconstruct
     /// --landmarks DIR` looks), with `json` also `NAME.json` ([`crate::landmarks`]' JSON
-    /// form), and `overlays/NAME.png` for each decoded photo.
+    /// form), and `overlays/NAME.jpg` for each decoded photo.
     pub files: Vec<(PathBuf, Vec<u8>)>,
 }
 

@@ -82,25 +82,21 @@ fn escape(text: &str) -> String {
     out
 }
 
-/// A picture as a `data:` URI: photographs (`photo`) re-encoded as JPEG (quality 85, by
-/// `jpeg-encoder`, which took half the time of `image`'s encoder on a page's pictures) to keep
-/// the page small, other pictures as they are (and a photograph wider or taller than JPEG's
-/// 65,535 pixels). A PNG that does not decode is inlined as is
-/// (the browser then reports it, and the self-check names it).
-fn picture_uri(png: &[u8], photo: bool) -> String {
-    if photo && let Ok(image) = image::load_from_memory_with_format(png, image::ImageFormat::Png) {
-        let rgb = image.to_rgb8();
-        let mut jpeg = Vec::new();
-        let encoder = jpeg_encoder::Encoder::new(&mut jpeg, 85);
-        if let (Ok(width), Ok(height)) = (u16::try_from(rgb.width()), u16::try_from(rgb.height()))
-            && encoder
-                .encode(rgb.as_raw(), width, height, jpeg_encoder::ColorType::Rgb)
-                .is_ok()
-        {
-            return format!("data:image/jpeg;base64,{}", base64::encode(&jpeg));
-        }
+/// A picture as a `data:` URI: a JPEG as it is; photographs given as PNG (`photo`)
+/// re-encoded as JPEG ([`crate::io::encode_jpeg`] at [`crate::io::JPEG_QUALITY`]) to keep the page small, other
+/// PNGs as they are (and a photograph wider or taller than JPEG's 65,535 pixels). A PNG that
+/// does not decode is inlined as is (the browser then reports it, and the self-check names it).
+fn picture_uri(bytes: &[u8], photo: bool) -> String {
+    if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        return format!("data:image/jpeg;base64,{}", base64::encode(bytes));
     }
-    format!("data:image/png;base64,{}", base64::encode(png))
+    if photo
+        && let Ok(image) = image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+        && let Ok(jpeg) = crate::io::encode_jpeg(&image.to_rgb8(), crate::io::JPEG_QUALITY)
+    {
+        return format!("data:image/jpeg;base64,{}", base64::encode(&jpeg));
+    }
+    format!("data:image/png;base64,{}", base64::encode(bytes))
 }
 
 /// The pictures of a page, inlined last and in parallel (decoding and re-encoding them is
@@ -407,7 +403,7 @@ pub fn report_page(files: &[(PathBuf, Vec<u8>)], options: &PageOptions) -> Strin
     }
 
     // The photos.
-    let overlays = files.in_folder(&r("overlays"), "png");
+    let overlays = files.in_folder(&r("overlays"), "jpg");
     if !overlays.is_empty() {
         page.push_str("<section id=\"photos\">\n<h2>The photos</h2>\n<p class=\"lead\">Yellow: the face detector's box; \
                        green: the landmarks; magenta: the fitted face's points seen by each photo's camera, joined to the photo's own.</p>\n<div class=\"grid\">\n");

@@ -106,7 +106,7 @@ fn a_batch_reconstructs_each_subject_resumes_and_reports_failures() {
         "face.obj",
         "surface.json",
         "face.png",
-        "overlays/photo01.png",
+        "overlays/photo01.jpg",
     ] {
         assert_eq!(
             std::fs::read(out.join("alice").join(file)).unwrap(),

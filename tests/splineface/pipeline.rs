@@ -204,7 +204,7 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     assert!(demo.join("report.html").is_file());
     for k in 1..=6 {
         assert!(
-            demo.join(format!("reconstruction/overlays/photo{k:02}.png"))
+            demo.join(format!("reconstruction/overlays/photo{k:02}.jpg"))
                 .is_file()
         );
     }
@@ -237,7 +237,7 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     for name in OUTPUTS
         .iter()
-        .chain(&["face.mtl", "face.png", "report.html", "overlays/photo06.png"])
+        .chain(&["face.mtl", "face.png", "report.html", "overlays/photo06.jpg"])
     {
         assert!(out.join(name).is_file(), "{name}");
     }
@@ -658,12 +658,12 @@ fn reconstruct_detects_and_landmarks_faces() {
     assert_eq!(
         file_names(&out.join("overlays")),
         [
-            "bald_guys.png",
-            "dogs.png",
-            "tom-mirrored.png",
-            "tom-with-a-small-face.png",
-            "tom.png",
-            "two-toms.png"
+            "bald_guys.jpg",
+            "dogs.jpg",
+            "tom-mirrored.jpg",
+            "tom-with-a-small-face.jpg",
+            "tom.jpg",
+            "two-toms.jpg"
         ]
     );
     let page = std::fs::read_to_string(out.join("report.html")).unwrap();
@@ -1056,14 +1056,14 @@ fn landmarks_draws_every_photo_it_can_decode_and_names_the_rest() {
         68
     );
     assert!(!out.join("thumbnail.pts").exists() && !out.join("not-an-image.pts").exists());
-    let grey = image::open(out.join("overlays/grey.png")).unwrap().to_rgb8();
+    let grey = image::open(out.join("overlays/grey.jpg")).unwrap().to_rgb8();
     // The photo part stays grey; the marks are green and yellow.
     let (w, h) = grey.dimensions();
     let middle = grey.get_pixel(w / 8, h - 4).0;
     assert!(middle[0] == middle[1] && middle[1] == middle[2], "{middle:?}");
-    let thumbnail = image::open(out.join("overlays/thumbnail.png")).unwrap();
+    let thumbnail = image::open(out.join("overlays/thumbnail.jpg")).unwrap();
     assert_eq!(thumbnail.width(), splineface::report::MIN_SIDE);
-    assert!(!out.join("overlays/not-an-image.png").exists());
+    assert!(!out.join("overlays/not-an-image.jpg").exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -152,7 +152,7 @@ fn a_page_escapes_what_the_report_says_and_tolerates_broken_files() {
         (PathBuf::from("report.json"), serde_json::to_vec(&report).unwrap()),
         (PathBuf::from("structure.json"), b"{ not json".to_vec()),
         (PathBuf::from("preview.png"), b"not a png".to_vec()),
-        (PathBuf::from("overlays/c.png"), b"not a png either".to_vec()),
+        (PathBuf::from("overlays/c.jpg"), b"not a jpeg either".to_vec()),
     ];
     let page = report_page(&files, &options());
     assert!(!page.contains("<img src=x"));

@@ -41,7 +41,7 @@ pub(crate) enum Command {
     Batch(BatchArgs),
     /// Detect the face in each photo and find its 68 landmarks: writes `NAME.pts` (iBUG,
     /// readable back by `reconstruct --landmarks DIR`), with `--json` also `NAME.json` (the
-    /// project's landmark JSON), and `overlays/NAME.png` (the photo with the face box and the
+    /// project's landmark JSON), and `overlays/NAME.jpg` (the photo with the face box and the
     /// points, or why none were found).
     Landmarks(LandmarksArgs),
     /// Write dlib's landmark model in splineface's compact form, which loads in a fraction of
