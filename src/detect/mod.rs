@@ -471,7 +471,12 @@ pub(crate) fn landmark_subject_timed(
     let (face, note) = subject_face(&detect_subject_faces(&image.to_luma8()))?;
     let detection = start.elapsed().as_secs_f64();
     let start = std::time::Instant::now();
-    let found = landmark_face(model, &image.to_rgb8(), face)?;
+    // An 8-bit RGB photo as it is; any other form converted.
+    let rgb = match image.as_rgb8() {
+        Some(rgb) => std::borrow::Cow::Borrowed(rgb),
+        None => std::borrow::Cow::Owned(image.to_rgb8()),
+    };
+    let found = landmark_face(model, &rgb, face)?;
     Ok((
         LandmarkedFace { note, ..found },
         [detection, start.elapsed().as_secs_f64()],

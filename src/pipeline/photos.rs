@@ -487,15 +487,19 @@ fn prepare_photo(
             );
         }
     };
-    match PhotoImage::from_dynamic(&decoded) {
-        Ok(image) => Prepared {
+    // The grey form first, so that the decoded image can become the colour one (no copy).
+    match crate::align::GreyImage::from_dynamic(&decoded) {
+        Ok(grey) => Prepared {
             record,
             input: Some(Input {
                 points: PhotoPoints {
                     name: stem.to_owned(),
                     ..points
                 },
-                image: Some(image),
+                image: Some(PhotoImage {
+                    grey,
+                    colour: decoded.into_rgb8(),
+                }),
             }),
             skipped: None,
             warning,
