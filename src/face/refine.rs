@@ -2186,20 +2186,28 @@ impl FaceSpace {
         let coarser = (options.levels - 1 - level_index) as i32;
         let eye_pixels = options.eye_pixels / 2.0_f64.powi(coarser);
         let spacing = options.spacing * 2.0_f64.powi(coarser);
-        let images: Vec<LevelImage> = problem
-            .landmarks
-            .views
-            .iter()
-            .zip(&problem.boxes)
-            .zip(&state.cameras)
-            .map(|((v, b), camera)| {
-                let eye = 50.0 * camera.scale;
-                let factor = (eye_pixels / eye).min(1.0);
-                let window = (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
-                LevelImage::new(v.image, *b, factor, window)
-            })
-            .collect();
-        let samples = Samples::new(self, reference, &problem.expression_grids, spacing)?;
+        // The photos' crops side by side, and beside the samples: each crop alone is too small
+        // to keep both cores busy.
+        let (images, samples) = rayon::join(
+            || -> Vec<LevelImage> {
+                problem
+                    .landmarks
+                    .views
+                    .par_iter()
+                    .zip(&problem.boxes)
+                    .zip(&state.cameras)
+                    .map(|((v, b), camera)| {
+                        let eye = 50.0 * camera.scale;
+                        let factor = (eye_pixels / eye).min(1.0);
+                        let window =
+                            (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
+                        LevelImage::new(v.image, *b, factor, window)
+                    })
+                    .collect()
+            },
+            || Samples::new(self, reference, &problem.expression_grids, spacing),
+        );
+        let samples = samples?;
         let mut level = Level {
             images,
             samples,

@@ -1082,8 +1082,13 @@ fn photo_views(
     // A greyscale photo would take the colour out of every texel it shares: where a colour
     // photo sees a texel, it counts a thousandth as much.
     let grey: Vec<bool> = photos
-        .iter()
-        .map(|p| p.image.pixels().all(|c| c[0] == c[1] && c[1] == c[2]))
+        .par_iter()
+        .map(|p| {
+            p.image
+                .as_raw()
+                .par_chunks(3 * 4096)
+                .all(|run| run.chunks_exact(3).all(|c| c[0] == c[1] && c[1] == c[2]))
+        })
         .collect();
     if grey.iter().any(|&g| !g) {
         for (view, _) in views.iter_mut().zip(&grey).filter(|(_, g)| **g) {
@@ -1184,26 +1189,32 @@ fn photo_shares(views: &[PhotoView], blended: &[Blended], p: Real, m: usize) -> 
 }
 
 /// Fills texels no photo saw from their mirror image across the face's midline, where a photo
-/// saw that.
+/// saw that. (Only unseen texels change, and only seen ones are read: each texel's mirror is
+/// looked up independently, in parallel.)
 fn fill_from_mirror(
     face: &FaceSurface,
     texels: &Texels,
     side: usize,
     (sources, colours, confidence): (&mut [TexelSource], &mut [[f32; 3]], &mut [f32]),
 ) {
-    let n = side * side;
     let frame = face.frame();
-    for k in 0..n {
-        if sources[k] != TexelSource::Filled {
-            continue;
-        }
-        let [u, v] = texels.param(k);
-        let q = frame.position(u, v);
-        let m = frame.parameters(-q.x, q.y);
-        let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
-        let r = (((1.0 - m.y) * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
-        let j = r * side + c;
-        if sources[j] == TexelSource::Seen {
+    let mirrors: Vec<Option<usize>> = (0..side * side)
+        .into_par_iter()
+        .map(|k| {
+            if sources[k] != TexelSource::Filled {
+                return None;
+            }
+            let [u, v] = texels.param(k);
+            let q = frame.position(u, v);
+            let m = frame.parameters(-q.x, q.y);
+            let c = ((m.x * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+            let r = (((1.0 - m.y) * side as Real).floor() as i64).clamp(0, side as i64 - 1) as usize;
+            let j = r * side + c;
+            (sources[j] == TexelSource::Seen).then_some(j)
+        })
+        .collect();
+    for (k, j) in mirrors.into_iter().enumerate() {
+        if let Some(j) = j {
             sources[k] = TexelSource::Mirrored;
             colours[k] = colours[j];
             confidence[k] = confidence[j];
@@ -1255,23 +1266,24 @@ pub fn bake_texture(
         vec![[1.0; 3]; photos.len()]
     };
 
-    let (n, m) = (side * side, photos.len());
+    let m = photos.len();
     let blended = blend(&views, (photos, &nodes, &table), &gains, options.sharpness);
     let shares = photo_shares(&views, &blended, options.sharpness, m);
-    let mut colours: Vec<[f32; 3]> = blended.iter().map(|b| b.colour).collect();
-    let mut confidence: Vec<f32> = blended.iter().map(|b| b.best).collect();
-    let mut sources: Vec<TexelSource> = (0..n)
-        .map(|k| match (texels.inside[k], blended[k].total > 0.0) {
+    let mut colours: Vec<[f32; 3]> = blended.par_iter().map(|b| b.colour).collect();
+    let mut confidence: Vec<f32> = blended
+        .par_iter()
+        .zip(&texels.inside)
+        .map(|(b, &inside)| if inside { b.best } else { 0.0 })
+        .collect();
+    let mut sources: Vec<TexelSource> = blended
+        .par_iter()
+        .zip(&texels.inside)
+        .map(|(b, &inside)| match (inside, b.total > 0.0) {
             (false, _) => TexelSource::Outside,
             (true, true) => TexelSource::Seen,
             (true, false) => TexelSource::Filled,
         })
         .collect();
-    for (c, &inside) in confidence.iter_mut().zip(&texels.inside) {
-        if !inside {
-            *c = 0.0;
-        }
-    }
     if options.mirror {
         fill_from_mirror(face, &texels, side, (&mut sources, &mut colours, &mut confidence));
     }
