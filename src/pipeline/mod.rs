@@ -944,20 +944,23 @@ fn texture_from_photos(
                 .colour
         })
         .collect();
-    let mut own_faces: Vec<Option<FaceSurface>> = Vec::with_capacity(usable.len());
-    for &slot in &usable {
-        let own = match space {
-            Some((space, fit)) if !fit.expression_names.is_empty() => {
-                let own = space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?;
-                Some(match displacement {
-                    Some(d) => own.displaced(d)?,
-                    None => own,
-                })
-            }
-            _ => None,
-        };
-        own_faces.push(own);
-    }
+    // Each photo's own face (its expression), side by side.
+    use rayon::prelude::*;
+    let own_faces: Vec<Option<FaceSurface>> = usable
+        .par_iter()
+        .map(|&slot| -> Result<Option<FaceSurface>, PipelineError> {
+            Ok(match space {
+                Some((space, fit)) if !fit.expression_names.is_empty() => {
+                    let own = space.face_with_expression(reference, &fit.weights, &fit.expressions[slot])?;
+                    Some(match displacement {
+                        Some(d) => own.displaced(d)?,
+                        None => own,
+                    })
+                }
+                _ => None,
+            })
+        })
+        .collect::<Result<_, _>>()?;
     let photos: Vec<TexturePhoto<'_>> = usable
         .iter()
         .zip(&images)
