@@ -43,6 +43,7 @@ pub use settings::Settings;
 use std::time::Instant;
 
 use nalgebra::Point3;
+use rayon::prelude::*;
 
 use crate::Real;
 use crate::align::{
@@ -945,7 +946,6 @@ fn texture_from_photos(
         })
         .collect();
     // Each photo's own face (its expression), side by side.
-    use rayon::prelude::*;
     let own_faces: Vec<Option<FaceSurface>> = usable
         .par_iter()
         .map(|&slot| -> Result<Option<FaceSurface>, PipelineError> {

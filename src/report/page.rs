@@ -83,9 +83,10 @@ fn escape(text: &str) -> String {
 }
 
 /// A picture as a `data:` URI: a JPEG as it is; photographs given as PNG (`photo`)
-/// re-encoded as JPEG ([`crate::io::encode_jpeg`] at [`crate::io::JPEG_QUALITY`]) to keep the page small, other
-/// PNGs as they are (and a photograph wider or taller than JPEG's 65,535 pixels). A PNG that
-/// does not decode is inlined as is (the browser then reports it, and the self-check names it).
+/// re-encoded as JPEG ([`crate::io::encode_jpeg`] at [`crate::io::JPEG_QUALITY`]) to keep the
+/// page small; other PNGs as they are (and a photograph wider or taller than JPEG's 65,535
+/// pixels). A PNG that does not decode is inlined as is (the browser then reports it, and the
+/// self-check names it).
 fn picture_uri(bytes: &[u8], photo: bool) -> String {
     if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
         return format!("data:image/jpeg;base64,{}", base64::encode(bytes));
