@@ -246,13 +246,27 @@ impl ColourMap {
     /// The linear colour at texture coordinates `(u, v)`, `v` up (`v = 0` is the image's
     /// bottom row), bilinear, repeating outside `[0, 1]`.
     pub fn sample(&self, u: Real, v: Real) -> [Real; 3] {
-        let x = u.rem_euclid(1.0) * self.width as Real - 0.5;
-        let y = (1.0 - v.rem_euclid(1.0)) * self.height as Real - 0.5;
-        let (x0, y0) = (x.floor(), y.floor());
-        let (fx, fy) = (x - x0, y - y0);
-        let wrap = |a: Real, n: usize| (a as i64).rem_euclid(n as i64) as usize;
-        let (xa, xb) = (wrap(x0, self.width), wrap(x0 + 1.0, self.width));
-        let (ya, yb) = (wrap(y0, self.height), wrap(y0 + 1.0, self.height));
+        // Coordinates inside the square, texels inside the image and non-negative ones are
+        // the rule: each takes a comparison there rather than a library call (`rem_euclid`,
+        // `floor` on the baseline x86-64 target) or an integer division, with the same result.
+        let unit = |t: Real| if (0.0..1.0).contains(&t) { t } else { t.rem_euclid(1.0) };
+        let floor = |t: Real| {
+            let k = t as i64;
+            if (k as Real) > t { k - 1 } else { k }
+        };
+        let x = unit(u) * self.width as Real - 0.5;
+        let y = (1.0 - unit(v)) * self.height as Real - 0.5;
+        let (x0, y0) = (floor(x), floor(y));
+        let (fx, fy) = (x - x0 as Real, y - y0 as Real);
+        let wrap = |a: i64, n: usize| {
+            if (0..n as i64).contains(&a) {
+                a as usize
+            } else {
+                a.rem_euclid(n as i64) as usize
+            }
+        };
+        let (xa, xb) = (wrap(x0, self.width), wrap(x0 + 1, self.width));
+        let (ya, yb) = (wrap(y0, self.height), wrap(y0 + 1, self.height));
         let at = |x: usize, y: usize| self.texels[y * self.width + x];
         let mut out = [0.0; 3];
         for (c, o) in out.iter_mut().enumerate() {
@@ -328,10 +342,12 @@ impl ShadowMap {
         let r = &self.raster;
         let steps = [-1.0, -0.5, 0.0, 0.5, 1.0];
         // A tap's column depends on its x step only and its row on its y step only: five of
-        // each, rounded once (the rounding is a library call on the baseline x86-64 target).
+        // each, rounded once, to the nearest cell by truncating half a cell on (`round` is a
+        // library call on the baseline x86-64 target, a truncating conversion one instruction;
+        // they differ only at exact halves).
         let cell = |c: Real, origin: Real, n: usize| {
-            let k = ((c - origin) / r.spacing).round();
-            (k >= 0.0 && (k as usize) < n).then_some(k as usize)
+            let k = (c - origin) / r.spacing + 0.5;
+            (k >= 0.0 && k < n as Real).then(|| k as usize)
         };
         let columns = steps.map(|d| cell(q.x + d * self.softness, r.origin.x, r.width));
         let rows = steps.map(|d| cell(q.y + d * self.softness, r.origin.y, r.height));
@@ -470,23 +486,24 @@ pub fn render_photo(
         shadow_side(&pixels, &keys),
     );
     let eye = big.position();
-    let background = |row: usize| -> [Real; 3] {
-        let t = row as Real / (height.max(2) - 1) as Real;
-        let mut c = [0.0; 3];
-        for (k, o) in c.iter_mut().enumerate() {
-            let top = srgb_to_linear(look.background_top[k] as f32) as Real;
-            let bottom = srgb_to_linear(look.background_bottom[k] as f32) as Real;
-            *o = top * (1.0 - t) + bottom * t;
-        }
-        c
-    };
+    // The background's gradient, row by row (linear light).
+    let background: Vec<[Real; 3]> = (0..height)
+        .map(|row| {
+            let t = row as Real / (height.max(2) - 1) as Real;
+            std::array::from_fn(|k| {
+                let top = srgb_to_linear(look.background_top[k] as f32) as Real;
+                let bottom = srgb_to_linear(look.background_bottom[k] as f32) as Real;
+                top * (1.0 - t) + bottom * t
+            })
+        })
+        .collect();
 
     let mut linear = vec![[0.0 as Real; 3]; width * height];
     linear.par_chunks_mut(width).enumerate().for_each(|(row, out)| {
         for (col, o) in out.iter_mut().enumerate() {
             let id = ids[row * width + col];
             if id == u32::MAX {
-                *o = background(row);
+                *o = background[row];
                 continue;
             }
             let k = id as usize;
