@@ -202,11 +202,14 @@ pub struct SurfaceReport {
 /// [`SurfaceReport::refinement`].
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct RefinementReport {
-    /// Whether the refined face was kept.
+    /// Whether the refined face was kept (whole or in part).
     pub accepted: bool,
+    /// How much of the way from the landmark fit to the refined face was kept
+    /// ([`crate::face::Refinement::share`]).
+    pub share: Real,
     /// Each photo's share of the face it saw.
     pub coverage: Vec<Real>,
-    /// The photos' disagreement after.
+    /// The photos' disagreement on the refined face (the whole way, whatever the share kept).
     pub disagreement_after: Real,
     /// Before.
     pub disagreement_before: Real,
@@ -557,6 +560,7 @@ impl Reconstruction {
         let report = self.face.report();
         let refinement = self.refinement.as_ref().map(|r| RefinementReport {
             accepted: r.accepted,
+            share: r.share,
             coverage: r.coverage.clone(),
             disagreement_after: r.disagreement.1,
             disagreement_before: r.disagreement.0,

@@ -249,7 +249,13 @@ impl ColourMap {
         // Coordinates inside the square, texels inside the image and non-negative ones are
         // the rule: each takes a comparison there rather than a library call (`rem_euclid`,
         // `floor` on the baseline x86-64 target) or an integer division, with the same result.
-        let unit = |t: Real| if (0.0..1.0).contains(&t) { t } else { t.rem_euclid(1.0) };
+        let unit = |t: Real| {
+            if (0.0..1.0).contains(&t) {
+                t
+            } else {
+                t.rem_euclid(1.0)
+            }
+        };
         let floor = |t: Real| {
             let k = t as i64;
             if (k as Real) > t { k - 1 } else { k }

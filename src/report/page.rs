@@ -560,10 +560,12 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
             } else {
                 format!(
                     "{} (disagreement {} → {}{})",
-                    if refinement["accepted"].as_bool() == Some(true) {
-                        "accepted"
-                    } else {
-                        "not accepted"
+                    match (refinement["accepted"].as_bool(), refinement["share"].as_f64()) {
+                        (Some(true), Some(share)) if share < 1.0 => {
+                            format!("kept {:.0}% of the way from the landmark fit", 100.0 * share)
+                        }
+                        (Some(true), _) => "accepted".to_owned(),
+                        _ => "not accepted".to_owned(),
                     },
                     number(refinement.get("disagreement_before"), 3),
                     number(refinement.get("disagreement_after"), 3),
@@ -727,6 +729,21 @@ mod tests {
             "{unchecked}"
         );
         assert!(!unchecked.contains("left out"), "{unchecked}");
+        // Kept in part: the share is named.
+        let report = serde_json::json!({
+            "surface": {"refinement": {
+                "accepted": true,
+                "share": 0.31,
+                "disagreement_before": 0.5,
+                "disagreement_after": 0.43,
+            }}
+        });
+        let mut part = String::new();
+        summary(&mut part, &report, &Value::Null);
+        assert!(
+            part.contains("kept 31% of the way from the landmark fit (disagreement 0.500 → 0.430)"),
+            "{part}"
+        );
     }
 
     #[test]

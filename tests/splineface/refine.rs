@@ -296,6 +296,7 @@ fn a_refinement_turned_down_gives_back_the_landmark_fit() {
         .refine_photos(scene.reference, &fit, &views, &weights, &options)
         .unwrap();
     assert!(!refined.accepted, "{}", refined.note);
+    assert_eq!(refined.share, 0.0);
     assert_eq!(refined.weights, fit.weights);
     for (camera, (pose, offset)) in refined.cameras.iter().zip(&fit.poses) {
         assert_eq!(camera.perspective, 0.0);
@@ -319,6 +320,55 @@ fn a_refinement_turned_down_gives_back_the_landmark_fit() {
         .unwrap();
     assert_eq!(refined.landmark_rms.0, orthographic.landmark_rms.0);
     assert!(refined.disagreement.0 <= orthographic.disagreement.0);
+}
+
+/// A fall of the disagreement short of `full_gain` keeps that share of the way from the landmark
+/// fit to the refined face: the weights on the segment between the two, exactly, with the
+/// refined cameras.
+#[test]
+fn a_refinement_kept_in_part_lies_between_the_landmark_fit_and_the_refined_face() {
+    let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0]);
+    let (weights, fit, views) = landmark_fit(&scene);
+    let refine = |min_gain, full_gain| {
+        let options = RefineOptions {
+            levels: 2,
+            min_gain,
+            full_gain,
+            ..RefineOptions::default()
+        };
+        scene
+            .space
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
+            .unwrap()
+    };
+    let whole = refine(Real::NEG_INFINITY, 0.0);
+    assert!(whole.accepted && whole.share == 1.0, "{}", whole.note);
+    // A ramp from -1 to 10: the share is a tenth or so, whatever the fall.
+    let part = refine(-1.0, 10.0);
+    let gain = 1.0 - part.disagreement.1 / part.disagreement.0;
+    eprintln!("fall {gain:.3}, share {:.3}: {}", part.share, part.note);
+    assert_eq!(
+        part.disagreement, whole.disagreement,
+        "the same refinement before the verdict"
+    );
+    assert!(part.accepted);
+    assert!((part.share - (gain + 1.0) / 11.0).abs() < 1e-12, "{}", part.share);
+    assert!(
+        part.note.contains("of the way from the landmark fit"),
+        "{}",
+        part.note
+    );
+    for ((p, f), w) in part.weights.iter().zip(&fit.weights).zip(&whole.weights) {
+        let expected = f + part.share * (w - f);
+        assert!((p - expected).abs() < 1e-9, "{p} against {expected}");
+    }
+    // The refined cameras are kept.
+    for (a, b) in part.cameras.iter().zip(&whole.cameras) {
+        assert_eq!((a.offset, a.rotation, a.scale), (b.offset, b.rotation, b.scale));
+    }
+    let between = shape_distance(&scene, &part.weights, &fit.weights);
+    let all = shape_distance(&scene, &whole.weights, &fit.weights);
+    assert!(between > 0.0 && between < all, "{between} of {all}");
 }
 
 /// The check on photos left out: on photos of a member of the space, the face the other
@@ -428,6 +478,13 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
                 ..RefineOptions::default()
             },
             "spacing",
+        ),
+        (
+            RefineOptions {
+                full_gain: Real::NAN,
+                ..RefineOptions::default()
+            },
+            "full gain",
         ),
     ] {
         match refine(&views, &options) {

@@ -1000,6 +1000,11 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
     use splineface::face::RefineOptions;
     use splineface::pipeline::{Shape, StructureWeight};
     let default = PipelineOptions::default();
+    let soft = |min_gain, full_gain| RefineOptions {
+        min_gain,
+        full_gain,
+        ..RefineOptions::default()
+    };
     let with = |f: &dyn Fn(&mut PipelineOptions)| {
         let mut o = default;
         f(&mut o);
@@ -1281,6 +1286,13 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 })
             }),
         ),
+        // The refinement kept in proportion to the disagreement's fall between two thresholds
+        // (RefineOptions::full_gain; the default ramps from 10% to 20%), or a step (the former
+        // default).
+        method("refine step 15", with(&|o| o.refine = Some(soft(0.15, 0.15)))),
+        method("refine soft 10-25", with(&|o| o.refine = Some(soft(0.10, 0.25)))),
+        method("refine soft 5-20", with(&|o| o.refine = Some(soft(0.05, 0.20)))),
+        method("refine soft 15-25", with(&|o| o.refine = Some(soft(0.15, 0.25)))),
         method(
             "refine orthographic",
             with(&|o| {
