@@ -282,6 +282,20 @@ pub struct StageTime {
 
 type Files = Vec<(PathBuf, Vec<u8>)>;
 
+/// One group of output files to encode.
+type Part<'a> = Box<dyn Fn() -> Result<Files, PipelineError> + Send + Sync + 'a>;
+
+/// The parts encoded side by side (most encoders run on one core), their files listed in the
+/// parts' order.
+fn encode_parts(parts: &[Part<'_>]) -> Result<Files, PipelineError> {
+    let parts: Vec<Result<Files, PipelineError>> = parts.par_iter().map(|part| part()).collect();
+    let mut files = Vec::new();
+    for part in parts {
+        files.extend(part?);
+    }
+    Ok(files)
+}
+
 /// Samples along each side of `curvature.png`.
 pub const CURVATURE_SIDE: usize = 256;
 
@@ -294,14 +308,44 @@ impl Reconstruction {
     pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
-        // The files are independent: encoded side by side (most encoders run on one core),
-        // listed in this order.
-        type Part<'a> = Box<dyn Fn() -> Result<Files, PipelineError> + Send + Sync + 'a>;
-        let parts: Vec<Part<'_>> = vec![
-            Box::new(|| self.mesh_files(&mesh)),
+        let mut parts = self.textured_parts(&mesh);
+        parts.extend(self.untextured_parts(&mesh));
+        let files = encode_parts(&parts)?;
+        self.finish_files(files, &mesh, start)
+    }
+
+    /// The files that do not depend on the texture, encoded: what [`super::reconstruct_files`]
+    /// encodes while the texture is baked. With their wall time, seconds.
+    pub(super) fn untextured_files(&self) -> Result<(Files, Real), PipelineError> {
+        let start = Instant::now();
+        let mesh = self.output_mesh();
+        let files = encode_parts(&self.untextured_parts(&mesh))?;
+        Ok((files, start.elapsed().as_secs_f64()))
+    }
+
+    /// [`Reconstruction::files`] given [`Reconstruction::untextured_files`]'s: the same files
+    /// in the same order.
+    pub(super) fn files_after(&self, untextured: Files) -> Result<Files, PipelineError> {
+        let start = Instant::now();
+        let mesh = self.output_mesh();
+        let mut files = encode_parts(&self.textured_parts(&mesh))?;
+        files.extend(untextured);
+        self.finish_files(files, &mesh, start)
+    }
+
+    /// The files that show the texture (the meshes carry it): encoded last, once it is baked.
+    fn textured_parts<'a>(&'a self, mesh: &'a TriangleMesh) -> Vec<Part<'a>> {
+        vec![
+            Box::new(|| self.mesh_files(mesh)),
             Box::new(|| self.texture_files()),
+        ]
+    }
+
+    /// The files that need no texture.
+    fn untextured_parts<'a>(&'a self, mesh: &'a TriangleMesh) -> Vec<Part<'a>> {
+        vec![
             Box::new(|| self.surface_files()),
-            Box::new(|| self.depth_files(&mesh)),
+            Box::new(|| self.depth_files(mesh)),
             Box::new(|| Ok(vec![("curvature.png".into(), self.curvature_png()?)])),
             // Where the photos agree, before and after the refinement.
             Box::new(|| {
@@ -322,16 +366,21 @@ impl Reconstruction {
                     .map(|(name, bytes)| (PathBuf::from("aligned").join(name), bytes))
                     .collect())
             }),
-        ];
-        let parts: Vec<Result<Files, PipelineError>> = parts.par_iter().map(|part| part()).collect();
-        let mut files = Vec::new();
-        for part in parts {
-            files.extend(part?);
-        }
+        ]
+    }
+
+    /// `structure.json` and `report.json` after the encoded `files` (the report times the
+    /// outputs from `start`).
+    fn finish_files(
+        &self,
+        mut files: Files,
+        mesh: &TriangleMesh,
+        start: Instant,
+    ) -> Result<Files, PipelineError> {
         let structure =
             serde_json::to_vec_pretty(&self.structure_file()).map_err(encode_error("structure.json"))?;
         files.push(("structure.json".into(), structure));
-        let report = self.report_file(&mesh, start.elapsed().as_secs_f64());
+        let report = self.report_file(mesh, start.elapsed().as_secs_f64());
         let report = serde_json::to_vec_pretty(&report).map_err(encode_error("report.json"))?;
         files.push(("report.json".into(), report));
         Ok(files)

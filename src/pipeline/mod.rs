@@ -40,6 +40,7 @@ pub use photos::{
 pub(crate) use photos::{files_in, photo_files};
 pub use settings::Settings;
 
+use std::path::PathBuf;
 use std::time::Instant;
 
 use nalgebra::Point3;
@@ -407,8 +408,42 @@ pub fn reconstruct(
     inputs: &[Input],
     reference: &ReferenceFace,
     options: &PipelineOptions,
-    mut progress: impl FnMut(&str),
+    progress: impl FnMut(&str),
 ) -> Result<Reconstruction, PipelineError> {
+    Ok(run(inputs, reference, options, progress, false)?.0)
+}
+
+/// [`reconstruct`], then [`Reconstruction::files`]: the same reconstruction and the same files,
+/// sooner. The files that need no texture (the surface, depth maps, curvature, consistency
+/// and RASL's pictures) are encoded while the texture is baked, on the cores the bake leaves
+/// idle; the report's timings then list them beside the texture's.
+///
+/// # Errors
+/// As [`reconstruct`] and [`Reconstruction::files`].
+pub fn reconstruct_files(
+    inputs: &[Input],
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+    progress: impl FnMut(&str),
+) -> Result<(Reconstruction, Vec<(PathBuf, Vec<u8>)>), PipelineError> {
+    let (result, untextured) = run(inputs, reference, options, progress, true)?;
+    let files = match untextured {
+        Some(untextured) => result.files_after(untextured)?,
+        None => result.files()?,
+    };
+    Ok((result, files))
+}
+
+/// [`reconstruct`]; with `encode`, also the files that need no texture, encoded beside the
+/// texture's bake.
+#[allow(clippy::type_complexity)]
+fn run(
+    inputs: &[Input],
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+    mut progress: impl FnMut(&str),
+    encode: bool,
+) -> Result<(Reconstruction, Option<Vec<(PathBuf, Vec<u8>)>>), PipelineError> {
     let needed = check_request(inputs, options)?;
     // The structure to deform from is where the photo path puts landmarks on the reference.
     let reference: &ReferenceFace = &reference.as_seen_in_photos();
@@ -505,34 +540,14 @@ pub fn reconstruct(
     timings.push(("surface".to_owned(), surface_start.elapsed().as_secs_f64()));
     let space_and_fit = space.as_ref().map(|(s, _)| s).zip(space_fit.as_ref());
     let fits = photo_fits(&inputs, &kept, &depth, space_and_fit, refinement.as_ref())?;
-    let (texture, texture_photos) = if with_images {
-        progress("baking the texture from the photos");
-        let start = Instant::now();
-        let baked = texture_from_photos(
-            &face,
-            reference,
-            (&inputs, &kept, &fits),
-            &depth,
-            space_and_fit,
-            refinement.as_ref(),
-            &options.texture,
-        )?;
-        timings.push(("texture".to_owned(), start.elapsed().as_secs_f64()));
-        match baked {
-            Ok((texture, names)) => (Some(texture), Ok(names)),
-            Err(why) => (None, Err(why)),
-        }
-    } else {
-        (None, Err("no images".to_owned()))
-    };
-    Ok(Reconstruction {
+    let mut result = Reconstruction {
         frontal,
         rasl,
         depth,
         face,
         mesh,
-        texture,
-        texture_photos,
+        texture: None,
+        texture_photos: Err("no images".to_owned()),
         dropped,
         structure_weight: (structure_weight, weight_note),
         photo_fits: fits,
@@ -546,7 +561,58 @@ pub fn reconstruct(
         },
         timings,
         options: *options,
-    })
+    };
+    let untextured = |r: &Reconstruction| encode.then(|| r.untextured_files());
+    let untextured = if with_images {
+        progress(if encode {
+            "baking the texture from the photos (and encoding the outputs that need none)"
+        } else {
+            "baking the texture from the photos"
+        });
+        let start = Instant::now();
+        let r = &result;
+        let space_and_fit = space.as_ref().map(|(s, _)| s).zip(r.space.as_ref());
+        let (baked, untextured) = rayon::join(
+            || {
+                texture_from_photos(
+                    &r.face,
+                    reference,
+                    (&inputs, &kept, &r.photo_fits),
+                    &r.depth,
+                    space_and_fit,
+                    r.refinement.as_ref(),
+                    &options.texture,
+                )
+            },
+            || untextured(r),
+        );
+        let baked = baked?;
+        result
+            .timings
+            .push(("texture".to_owned(), start.elapsed().as_secs_f64()));
+        match baked {
+            Ok((texture, names)) => {
+                result.texture = Some(texture);
+                result.texture_photos = Ok(names);
+            }
+            Err(why) => result.texture_photos = Err(why),
+        }
+        untextured
+    } else {
+        untextured(&result)
+    };
+    let untextured = match untextured {
+        Some(files) => {
+            let (files, seconds) = files?;
+            result.timings.push((
+                "outputs that need no texture (encoded beside the texture)".to_owned(),
+                seconds,
+            ));
+            Some(files)
+        }
+        None => None,
+    };
+    Ok((result, untextured))
 }
 
 /// The request's own checks, before any work: some inputs, at least the minimum of photos,

@@ -542,7 +542,20 @@ impl PhotoSet {
         result: &Reconstruction,
         model_seconds: Option<f64>,
     ) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
-        let mut files = result.files()?;
+        self.files_with(result, result.files()?, model_seconds)
+    }
+
+    /// [`PhotoSet::files`] given `result`'s own files, as [`super::reconstruct_files`] made
+    /// them.
+    ///
+    /// # Errors
+    /// [`PipelineError::Encode`] if `report.json` cannot be re-encoded.
+    pub fn files_with(
+        &self,
+        result: &Reconstruction,
+        mut files: Vec<(PathBuf, Vec<u8>)>,
+        model_seconds: Option<f64>,
+    ) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
         let start = Instant::now();
         let mut warnings = self.warnings.clone();
         let photo_outputs = photo_files(
