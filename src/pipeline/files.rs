@@ -204,9 +204,6 @@ pub struct SurfaceReport {
 pub struct RefinementReport {
     /// Whether the refined face was kept (whole or in part).
     pub accepted: bool,
-    /// How much of the way from the landmark fit to the refined face was kept
-    /// ([`crate::face::Refinement::share`]).
-    pub share: Real,
     /// Each photo's share of the face it saw.
     pub coverage: Vec<Real>,
     /// The photos' disagreement on the refined face (the whole way, whatever the share kept).
@@ -230,6 +227,9 @@ pub struct RefinementReport {
     pub samples: usize,
     /// Samples at least two photos see.
     pub samples_seen_twice: usize,
+    /// How much of the way from the landmark fit to the refined face was kept
+    /// ([`crate::face::Refinement::share`]).
+    pub share: Real,
 }
 
 /// [`ReportFile::texture`].
