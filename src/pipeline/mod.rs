@@ -413,6 +413,9 @@ pub fn reconstruct(
     Ok(run(inputs, reference, options, progress, false)?.0)
 }
 
+/// Output files: `(path relative to the output directory, bytes)`.
+pub type OutputFiles = Vec<(PathBuf, Vec<u8>)>;
+
 /// [`reconstruct`], then [`Reconstruction::files`]: the same reconstruction and the same files,
 /// sooner. The files that need no texture (the surface, depth maps, curvature, consistency
 /// and RASL's pictures) are encoded while the texture is baked, on the cores the bake leaves
@@ -425,7 +428,7 @@ pub fn reconstruct_files(
     reference: &ReferenceFace,
     options: &PipelineOptions,
     progress: impl FnMut(&str),
-) -> Result<(Reconstruction, Vec<(PathBuf, Vec<u8>)>), PipelineError> {
+) -> Result<(Reconstruction, OutputFiles), PipelineError> {
     let (result, untextured) = run(inputs, reference, options, progress, true)?;
     let files = match untextured {
         Some(untextured) => result.files_after(untextured)?,
@@ -436,14 +439,13 @@ pub fn reconstruct_files(
 
 /// [`reconstruct`]; with `encode`, also the files that need no texture, encoded beside the
 /// texture's bake.
-#[allow(clippy::type_complexity)]
 fn run(
     inputs: &[Input],
     reference: &ReferenceFace,
     options: &PipelineOptions,
     mut progress: impl FnMut(&str),
     encode: bool,
-) -> Result<(Reconstruction, Option<Vec<(PathBuf, Vec<u8>)>>), PipelineError> {
+) -> Result<(Reconstruction, Option<OutputFiles>), PipelineError> {
     let needed = check_request(inputs, options)?;
     // The structure to deform from is where the photo path puts landmarks on the reference.
     let reference: &ReferenceFace = &reference.as_seen_in_photos();

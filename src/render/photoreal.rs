@@ -353,7 +353,7 @@ impl ShadowMap {
         // they differ only at exact halves).
         let cell = |c: Real, origin: Real, n: usize| {
             let k = (c - origin) / r.spacing + 0.5;
-            (k >= 0.0 && k < n as Real).then(|| k as usize)
+            (k >= 0.0 && k < n as Real).then_some(k as usize)
         };
         let columns = steps.map(|d| cell(q.x + d * self.softness, r.origin.x, r.width));
         let rows = steps.map(|d| cell(q.y + d * self.softness, r.origin.y, r.height));
