@@ -285,7 +285,7 @@ impl Default for RefineOptions {
     ///
     /// Kept in proportion between two thresholds ([`RefineOptions::full_gain`]) rather than
     /// at one: on the whole evaluation (`cargo run --release --example photo_eval --
-    /// --methods "default,landmarks only,refine ungated,refine soft 10-20,refine soft 10-25,
+    /// --methods "default,landmarks only,refine ungated,refine step 15,refine soft 10-25,
     /// refine soft 5-20,refine soft 15-25"`, 105 sets scored; the mean ratio of the error to
     /// the mean face's for 2 / 3 / 4 / 8 / 16 photos; to the landmark fit's, the sets more
     /// than 2% worse than it, the worst; the scan's eight given photos; the largest distance
@@ -2013,8 +2013,8 @@ impl FaceSpace {
         // optimisation starts from them with a typical perspective).
         let mut start = problem.start.clone();
         start.cameras.iter_mut().for_each(|c| c.perspective = 0.0);
-        let after_visibility = level.visibility(&state);
-        let after = level.disagreement(&state, &after_visibility);
+        let mut after_visibility = level.visibility(&state);
+        let mut after = level.disagreement(&state, &after_visibility);
         // Over the face: the weighted RMS over every sample two photos see, and their count.
         let overall = |per: &[Option<(Real, Real)>]| {
             let (sum, total, count) = per
@@ -2052,8 +2052,6 @@ impl FaceSpace {
         } else {
             0.0
         };
-        let mut after_visibility = after_visibility;
-        let mut after = after;
         let kept = if share >= 1.0 {
             state
         } else if accepted {
@@ -2520,6 +2518,8 @@ fn verdict(
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// The share kept rises linearly from `min_gain` to `full_gain`, and is a step where the
     /// ramp is empty or has no finite start.
     #[test]
@@ -2549,8 +2549,6 @@ mod tests {
             }
         }
     }
-
-    use super::*;
 
     /// One sample's normal equations by their closed-form blocks against the definition:
     /// every view's full residual row (the identity through the modes, every seeing view's

@@ -280,7 +280,7 @@ pub struct StageTime {
     pub stage: String,
 }
 
-type Files = Vec<(PathBuf, Vec<u8>)>;
+use super::OutputFiles as Files;
 
 /// One group of output files to encode.
 type Part<'a> = Box<dyn Fn() -> Result<Files, PipelineError> + Send + Sync + 'a>;
@@ -305,7 +305,7 @@ impl Reconstruction {
     ///
     /// # Errors
     /// [`PipelineError::Encode`] naming the output that could not be encoded.
-    pub fn files(&self) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
+    pub fn files(&self) -> Result<Files, PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
         let mut parts = self.textured_parts(&mesh);

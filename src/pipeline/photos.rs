@@ -553,9 +553,9 @@ impl PhotoSet {
     pub fn files_with(
         &self,
         result: &Reconstruction,
-        mut files: Vec<(PathBuf, Vec<u8>)>,
+        mut files: super::OutputFiles,
         model_seconds: Option<f64>,
-    ) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
+    ) -> Result<super::OutputFiles, PipelineError> {
         let start = Instant::now();
         let mut warnings = self.warnings.clone();
         let photo_outputs = photo_files(
