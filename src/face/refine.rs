@@ -1509,11 +1509,7 @@ impl Level<'_> {
     /// The robust consistency cost.
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
         let c = 2.0 * self.options.sigma;
-        self.per_sample(state, visibility, |seen, _, mean| {
-            seen.iter()
-                .map(|v| v.weight * c * c * (1.0 + ((v.value - mean) / c).powi(2)).ln())
-                .sum::<Real>()
-        })
+        self.per_sample(state, visibility, |seen, _, mean| sample_cost(seen, mean, c))
         // Summed in order: the same result whatever the threads.
         .iter()
         .flatten()
@@ -1729,7 +1725,10 @@ impl Level<'_> {
 
     /// The Gauss-Newton normal equations `(H, g)` at `state` (cost's half-Hessian and half-
     /// gradient).
-    fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>) {
+    /// The Gauss-Newton normal equations `(H, g)` at `state` and the cost there: the cost is
+    /// [`Level::cost`]'s to the bit (the same per-sample terms from the same views, summed in
+    /// the samples' order), taken in the same pass over the samples as the equations.
+    fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>, Real) {
         let normalisers = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
         let k = state.weights.len();
@@ -1741,15 +1740,17 @@ impl Level<'_> {
         // same equations whatever the threads (the outputs are byte-identical across thread
         // counts).
         let chunk = self.samples.len().div_ceil(8).max(1);
-        let parts: Vec<(DMatrix<Real>, DVector<Real>)> = (0..self.samples.len())
+        let parts: Vec<(DMatrix<Real>, DVector<Real>, Vec<Real>)> = (0..self.samples.len())
             .collect::<Vec<usize>>()
             .par_chunks(chunk)
             .map(|samples| {
                 let mut h = DMatrix::<Real>::zeros(n, n);
                 let mut g = DVector::<Real>::zeros(n);
+                let mut costs = Vec::with_capacity(samples.len());
                 for &s in samples {
                     let seen = self.seen(state, &placed, visibility, &normalisers, s, true);
                     if let Some((total, mean)) = agreement(&seen) {
+                        costs.push(sample_cost(&seen, mean, c));
                         let basis: &[(usize, Real)] = if state.field.is_empty() {
                             &[]
                         } else {
@@ -1766,13 +1767,18 @@ impl Level<'_> {
                         );
                     }
                 }
-                (h, g)
+                (h, g, costs)
             })
             .collect();
         let (mut h, mut g) = (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n));
-        for (ph, pg) in parts {
+        let mut consistency = 0.0;
+        for (ph, pg, costs) in parts {
             h += ph;
             g += pg;
+            // One running sum in the samples' order, as `consistency_cost` sums.
+            for cost in costs {
+                consistency += cost;
+            }
         }
         h.fill_lower_triangle_with_upper_triangle();
         if !state.field.is_empty() {
@@ -1813,7 +1819,10 @@ impl Level<'_> {
         for t in held_face.chain(held_cameras) {
             hold(&mut h, &mut g, t);
         }
-        (h, g)
+        let cost = consistency * self.options.beta / (self.options.sigma * self.options.sigma)
+            + self.landmarks.cost(state, self.options)
+            + self.prior(state);
+        (h, g, cost)
     }
 
     /// The held-out photos' disagreement with the others at `state`: per sample two of the
@@ -2415,8 +2424,7 @@ impl Level<'_> {
         for _ in 0..max_iterations {
             *iterations += 1;
             let visibility = self.visibility(&state);
-            let cost = self.cost(&state, &visibility);
-            let (h, g) = self.normal_equations(&state, &visibility);
+            let (h, g, cost) = self.normal_equations(&state, &visibility);
             let mut improved = false;
             for _ in 0..8 {
                 let mut damped = h.clone();
@@ -2445,6 +2453,14 @@ impl Level<'_> {
         }
         state
     }
+}
+
+/// One sample's robust consistency cost before its scale `β / σ²`: the Cauchy loss (`c = 2σ`)
+/// of each view's normalised intensity about the views' weighted mean, weighted.
+fn sample_cost(seen: &[Seen], mean: Real, c: Real) -> Real {
+    seen.iter()
+        .map(|v| v.weight * c * c * (1.0 + ((v.value - mean) / c).powi(2)).ln())
+        .sum::<Real>()
 }
 
 /// The relative fall of a disagreement `(before, after)`.
