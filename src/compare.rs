@@ -841,6 +841,10 @@ pub struct InnerFaceComparison {
     pub raster: crate::mesh::Raster,
     /// Truth → reconstruction distance per raster sample, mm; `NaN` outside the inner face.
     pub distances: Vec<Real>,
+    /// The truth's frontal height per raster sample (its view frame, mm); `NaN` outside the
+    /// inner face. With [`crate::mesh::front_heights`] of [`InnerFaceComparison::aligned`] it
+    /// gives where the reconstruction lies in front of the truth and where behind it.
+    pub truth_heights: Vec<Real>,
     /// The reconstruction, aligned, in the truth's view frame.
     pub aligned: TriangleMesh,
 }
@@ -1037,6 +1041,10 @@ fn score_inner_face(
     })?;
     let covering = crate::render::render_heights(aligned.positions(), aligned.triangles(), &raster);
     let covered = slots.iter().filter(|&&k| covering[k].is_finite()).count();
+    let mut truth_heights = vec![Real::NAN; width * height];
+    for &slot in &slots {
+        truth_heights[slot] = heights[slot];
+    }
     Ok(InnerFaceComparison {
         score: InnerFaceScore {
             distance: ErrorStats::of(&mut values),
@@ -1046,6 +1054,7 @@ fn score_inner_face(
         },
         raster,
         distances,
+        truth_heights,
         aligned,
     })
 }

@@ -1510,10 +1510,10 @@ impl Level<'_> {
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
         let c = 2.0 * self.options.sigma;
         self.per_sample(state, visibility, |seen, _, mean| sample_cost(seen, mean, c))
-        // Summed in order: the same result whatever the threads.
-        .iter()
-        .flatten()
-        .sum::<Real>()
+            // Summed in order: the same result whatever the threads.
+            .iter()
+            .flatten()
+            .sum::<Real>()
             * self.options.beta
             / (self.options.sigma * self.options.sigma)
     }
@@ -1723,12 +1723,15 @@ impl Level<'_> {
         }
     }
 
-    /// The Gauss-Newton normal equations `(H, g)` at `state` (cost's half-Hessian and half-
-    /// gradient).
-    /// The Gauss-Newton normal equations `(H, g)` at `state` and the cost there: the cost is
+    /// The Gauss-Newton normal equations `(H, g)` at `state` (the cost's half-Hessian and
+    /// half-gradient) and the cost there: the cost is
     /// [`Level::cost`]'s to the bit (the same per-sample terms from the same views, summed in
     /// the samples' order), taken in the same pass over the samples as the equations.
-    fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (DMatrix<Real>, DVector<Real>, Real) {
+    fn normal_equations(
+        &self,
+        state: &State,
+        visibility: &[Vec<Real>],
+    ) -> (DMatrix<Real>, DVector<Real>, Real) {
         let normalisers = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
         let k = state.weights.len();

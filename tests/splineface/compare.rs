@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use nalgebra::{Point3, Similarity3, Translation3, UnitQuaternion, Vector3};
 use splineface::Real;
 use splineface::compare::{
-    CompareError, CompareOptions, LengthUnit, MeshFiles, compare, compare_files, fit_similarity,
+    CompareError, CompareOptions, InnerFaceOptions, LengthUnit, MeshFiles, compare, compare_files,
+    fit_similarity, inner_face_score,
 };
 use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::mesh::{TriangleMesh, write_mesh};
@@ -72,6 +73,48 @@ fn the_same_face_moved_compares_as_identical() {
     assert!((stats.paper.structure_ssim.unwrap() - 1.0).abs() < 1e-9);
     assert!((stats.paper.depth_correlation.unwrap() - 1.0).abs() < 1e-9);
     assert!(stats.pixels_compared > 100_000);
+}
+
+#[test]
+fn the_inner_face_keeps_the_truths_heights_where_it_scores() {
+    // The same face moved: once aligned it lies on the truth, so its front heights are the
+    // truth's at every sample of the inner face, and the truth's heights are NaN exactly where
+    // no distance was scored.
+    let (mesh, structure) = truth();
+    let s = similarity();
+    let moved = mesh.transformed(&nalgebra::Affine3::from_matrix_unchecked(s.to_homogeneous()));
+    let moved_structure: Vec<Point3<Real>> = structure.iter().map(|p| s * p).collect();
+    let c = inner_face_score(
+        &moved,
+        &mesh,
+        (&moved_structure, &structure),
+        &InnerFaceOptions::default(),
+    )
+    .unwrap();
+    let front = splineface::mesh::front_heights(&c.aligned, &c.raster);
+    assert_eq!(c.truth_heights.len(), c.raster.width * c.raster.height);
+    let mut scored = 0;
+    for ((t, d), f) in c.truth_heights.iter().zip(&c.distances).zip(&front) {
+        assert_eq!(t.is_nan(), d.is_nan());
+        if t.is_finite() {
+            scored += 1;
+            assert!((f - t).abs() < 1e-6, "front {f} against the truth's {t}");
+        }
+    }
+    assert!(scored > 1000, "{scored} samples");
+    // Moved 1 mm toward the viewer along the truth's view axis, it lies in front everywhere.
+    let toward = c.aligned.transformed(&nalgebra::Affine3::from_matrix_unchecked(
+        nalgebra::Translation3::new(0.0, 0.0, 1.0).to_homogeneous(),
+    ));
+    let front = splineface::mesh::front_heights(&toward, &c.raster);
+    for (t, f) in c.truth_heights.iter().zip(&front) {
+        if t.is_finite() && f.is_finite() {
+            assert!(
+                (f - t - 1.0).abs() < 1e-6,
+                "front {f} against the truth's {t} + 1"
+            );
+        }
+    }
 }
 
 #[test]

@@ -11,7 +11,7 @@
 //! two disjoint halves of 16 photos test self-consistency.
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
-//! [--out DIR] [--model PATH]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -52,6 +52,10 @@ struct Args {
     model: PathBuf,
     data: PathBuf,
     ict: PathBuf,
+    /// The face space's modes the methods use (`--space-modes`).
+    space_modes: usize,
+    /// Where `--signed-maps` writes each reconstruction's signed depth error.
+    signed_maps: Option<PathBuf>,
 }
 
 fn parse_args() -> Result<Args> {
@@ -70,6 +74,8 @@ fn parse_args() -> Result<Args> {
         model: shared.join("models/shape_predictor_68_face_landmarks.dat"),
         data: shared.join("data/lps-head"),
         ict: shared.join("data/ict-face"),
+        space_modes: SPACE_MODES,
+        signed_maps: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -92,6 +98,8 @@ fn parse_args() -> Result<Args> {
             "--model" => args.model = value()?.into(),
             "--data" => args.data = value()?.into(),
             "--ict" => args.ict = value()?.into(),
+            "--space-modes" => args.space_modes = value()?.parse()?,
+            "--signed-maps" => args.signed_maps = Some(value()?.into()),
             other => bail!("unknown argument {other}"),
         }
     }
@@ -126,6 +134,40 @@ fn score(mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> 
         &InnerFaceOptions::default(),
     )?
     .score)
+}
+
+/// `--signed-maps DIR`, set once by `main`.
+static SIGNED_MAPS: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+
+/// With `--signed-maps DIR`: writes `mesh`'s signed error over `subject`'s inner face to
+/// `DIR/NAME.bin`: the score's truth → surface distance (mm), positive where the aligned
+/// reconstruction lies in front of the truth (its front height above the truth's), negative
+/// behind; a line "width height", then the raster's f32 values (little-endian; `NaN` outside
+/// the inner face and where the reconstruction does not cover it).
+fn signed_diag(name: &str, mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> Result<()> {
+    let Some(dir) = SIGNED_MAPS.get() else {
+        return Ok(());
+    };
+    let c = inner_face_score(
+        mesh,
+        &subject.truth,
+        (structure, &subject.structure),
+        &InnerFaceOptions::default(),
+    )?;
+    let front = splineface::mesh::front_heights(&c.aligned, &c.raster);
+    let mut bytes = format!("{} {}\n", c.raster.width, c.raster.height).into_bytes();
+    for ((f, t), d) in front.iter().zip(&c.truth_heights).zip(&c.distances) {
+        // NaN where the reconstruction does not cover the sample seen from the front.
+        let signed = if f.is_finite() {
+            d.copysign(f - t)
+        } else {
+            Real::NAN
+        };
+        bytes.extend_from_slice(&(signed as f32).to_le_bytes());
+    }
+    let name = format!("{}.bin", name.replace([' ', '/', ','], "_"));
+    std::fs::write(dir.join(name), bytes)?;
+    Ok(())
 }
 
 /// The photos' landmarks, found once per photo.
@@ -836,14 +878,15 @@ struct Method {
 
 impl Method {
     /// The reference the method runs on: the given one with its face space cut to the first
-    /// `SPACE_MODES` modes (the ICT subjects are drawn with all 60, so the space must
-    /// generalise, not recall; the scan is outside it anyway), and without its photo structure
-    /// for `vertex_structure`.
-    fn reference(&self, reference: &ReferenceFace) -> Result<ReferenceFace> {
+    /// `space_modes` modes ([`SPACE_MODES`] unless `--space-modes` says otherwise: the ICT
+    /// subjects are drawn with all 60, so the space must generalise, not recall; the scan is
+    /// outside it anyway; 60 lets the space recall them, a diagnostic of what the fit makes of
+    /// a face the space holds), and without its photo structure for `vertex_structure`.
+    fn reference(&self, reference: &ReferenceFace, space_modes: usize) -> Result<ReferenceFace> {
         let mut chosen = reference.clone();
         if let Some(modes) = reference.space_modes() {
             chosen = chosen
-                .with_space(Some(modes.truncated(SPACE_MODES)))
+                .with_space(Some(modes.truncated(space_modes)))
                 .map_err(anyhow::Error::msg)?;
         }
         if self.vertex_structure {
@@ -908,7 +951,7 @@ fn expressions(
     let mut table = String::new();
     let mut paired = String::new();
     for method in methods {
-        let chosen_reference = method.reference(reference)?;
+        let chosen_reference = method.reference(reference, args.space_modes)?;
         let mut errors: Vec<Vec<Vec<Real>>> = vec![vec![Vec::new(); args.counts.len()]; variants.len()];
         let mut baselines: Vec<Real> = Vec::new();
         for (k, row) in subjects.iter().enumerate() {
@@ -1330,6 +1373,10 @@ fn main() -> Result<()> {
     let reference = ReferenceFace::embedded();
     let mean_face = MeanFace::new(reference, Units::default(), &MeshOptions::default())?;
     std::fs::create_dir_all(&args.out)?;
+    if let Some(dir) = &args.signed_maps {
+        std::fs::create_dir_all(dir)?;
+        SIGNED_MAPS.set(dir.clone()).expect("set once");
+    }
 
     // Subjects and their pools.
     let mut subjects = vec![subjects::lps(&args.data)?];
@@ -1399,7 +1446,15 @@ fn main() -> Result<()> {
     };
     let baselines: Vec<InnerFaceScore> = subjects
         .iter()
-        .map(|s| score(&mean_face.mesh, &mean_face.structure, s))
+        .map(|s| {
+            signed_diag(
+                &format!("{}-mean-face", s.name),
+                &mean_face.mesh,
+                &mean_face.structure,
+                s,
+            )?;
+            score(&mean_face.mesh, &mean_face.structure, s)
+        })
         .collect::<Result<_>>()?;
     let methods = methods(&args.methods)?;
     if args.perspective {
@@ -1431,15 +1486,23 @@ fn main() -> Result<()> {
     for method in &methods {
         let (name, options) = (method.name, &method.options);
         let mut outcomes = Vec::new();
-        let chosen_reference = &method.reference(reference)?;
+        let chosen_reference = &method.reference(reference, args.space_modes)?;
         for set in &sets {
-            let (outcome, _) = run_set(
+            let (outcome, result) = run_set(
                 set,
                 &subjects[set.subject],
                 &mut landmarks,
                 chosen_reference,
                 options,
             )?;
+            if let Some(result) = result {
+                signed_diag(
+                    &format!("{}-{name}", set.label),
+                    &result.output_mesh(),
+                    &result.structure(),
+                    &subjects[set.subject],
+                )?;
+            }
             outcomes.push(outcome);
         }
         eprintln!(
@@ -1470,7 +1533,8 @@ fn main() -> Result<()> {
          22–45% of the width, yaw within ±60° for the scan and ±45° for the ICT masks, pitch ±15°, roll ±8°, a directional \
          light from the front hemisphere with soft shadows, ambient light, a sheen, gradient background, blur and sensor \
          noise); sets of {:?} photos are drawn from it ({} seeds each). Everything goes through the whole photo path: SeetaFace \
-         detection, dlib's 68 points, the landmark agreement, RASL, depth, surface.\n\n\
+         detection, dlib's 68 points, the landmark agreement, RASL, depth, surface. The methods' face space: the first {} \
+         identity modes{}.\n\n\
          Score: truth → surface distance over the truth's inner face (inside its contour and brows, the surface seen from \
          the front), mm, after a similarity alignment (landmarks, then ICP; `splineface::compare::inner_face_score`). The \
          unchanged mean face is scored the same way in the same run; ratios are to its error on the same subject (lower \
@@ -1482,7 +1546,13 @@ fn main() -> Result<()> {
         args.ict_subjects,
         args.pool,
         args.counts,
-        args.seeds
+        args.seeds,
+        args.space_modes,
+        if args.space_modes >= 60 {
+            " (the ICT subjects' own space: the fit can recall them)"
+        } else {
+            " (the ICT subjects have more: the space must generalise)"
+        }
     )?;
     writeln!(
         page,
@@ -1570,7 +1640,7 @@ fn main() -> Result<()> {
             .collect();
         write!(page, "| {} |", subject.name)?;
         for (m, method) in methods.iter().enumerate() {
-            let chosen = &method.reference(reference)?;
+            let chosen = &method.reference(reference, args.space_modes)?;
             let a = run_set(&halves[0], subject, &mut landmarks, chosen, &method.options)?.1;
             let b = run_set(&halves[1], subject, &mut landmarks, chosen, &method.options)?.1;
             match (&a, b) {
@@ -1630,7 +1700,7 @@ fn main() -> Result<()> {
         &sets[0],
         &subjects[0],
         &mut landmarks,
-        &methods[0].reference(reference)?,
+        &methods[0].reference(reference, args.space_modes)?,
         &methods[0].options,
         &mean_face,
         &args.out,
