@@ -207,6 +207,14 @@ pub struct RefineOptions {
     /// refinement is kept (with [`RefineOptions::held_out`]; sets of fewer than three photos
     /// have no folds and are judged by [`RefineOptions::min_gain`] alone).
     pub min_held_out_gain: Real,
+    /// Hold the face at the fit's and refine only the cameras: the photos' disagreement on a
+    /// given face with the cameras that suit it best (as the check on photos left out aligns
+    /// its photos). Off by default. With it, [`Refinement::weights`] are the fit's and the
+    /// disagreement's fall is the cameras' alone. `tools/photo_eval --from-truth` uses it to
+    /// ask whether the photos agree better on the true face than on the refined one
+    /// (`tools/results/from-truth.md`: with the default window they do not, on any of twelve
+    /// sets of six ICT identities).
+    pub hold_face: bool,
 }
 
 impl Default for RefineOptions {
@@ -331,6 +339,7 @@ impl Default for RefineOptions {
             landmark_slack: Real::INFINITY,
             held_out: false,
             min_held_out_gain: 0.0,
+            hold_face: false,
         }
     }
 }
@@ -2019,7 +2028,8 @@ impl FaceSpace {
     ) -> Result<Refinement, FaceError> {
         check_refine(fit, views, options)?;
         let problem = self.problem(fit, views, point_weights, options);
-        let (state, iterations, level) = self.run_levels(reference, &problem, options, None, false)?;
+        let (state, iterations, level) =
+            self.run_levels(reference, &problem, options, None, options.hold_face)?;
         let landmarks = &problem.landmarks;
         // The landmark fit as it stands: its own cameras, scaled orthographic (the
         // optimisation starts from them with a typical perspective).

@@ -322,6 +322,55 @@ fn a_refinement_turned_down_gives_back_the_landmark_fit() {
     assert!(refined.disagreement.0 <= orthographic.disagreement.0);
 }
 
+/// With the face held only the cameras move: the weights stay the fit's to the bit however far
+/// the photos' disagreement falls, and the cameras leave the fit's orthographic poses.
+#[test]
+fn holding_the_face_refines_the_cameras_alone() {
+    let scene = scene(&[1.5, -1.0, 1.0]);
+    let (weights, fit, views) = landmark_fit(&scene);
+    let options = RefineOptions {
+        levels: 1,
+        min_gain: Real::NEG_INFINITY,
+        hold_face: true,
+        ..RefineOptions::default()
+    };
+    let held = scene
+        .space
+        .refine_photos(scene.reference, &fit, &views, &weights, &options)
+        .unwrap();
+    assert!(held.accepted, "{}", held.note);
+    assert_eq!(held.weights, fit.weights);
+    assert!(
+        held.disagreement.1 <= held.disagreement.0,
+        "{:?}",
+        held.disagreement
+    );
+    assert!(
+        held.cameras
+            .iter()
+            .zip(&fit.poses)
+            .any(|(camera, (pose, offset))| camera.perspective != 0.0
+                || camera.rotation != pose.rotation
+                || camera.offset != offset.coords),
+        "no camera moved"
+    );
+    // Not held, the same refinement moves the face.
+    let free = scene
+        .space
+        .refine_photos(
+            scene.reference,
+            &fit,
+            &views,
+            &weights,
+            &RefineOptions {
+                hold_face: false,
+                ..options
+            },
+        )
+        .unwrap();
+    assert_ne!(free.weights, fit.weights);
+}
+
 /// A fall of the disagreement short of `full_gain` keeps that share of the way from the landmark
 /// fit to the refined face: the weights on the segment between the two, exactly, with the
 /// refined cameras.

@@ -11,7 +11,7 @@
 //! two disjoint halves of 16 photos test self-consistency.
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
-//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -28,7 +28,10 @@ use nalgebra::{Point2, Point3};
 use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{InnerFaceOptions, InnerFaceScore, inner_face_score};
-use splineface::face::{Deformation, ExpressionPrior, MeanFace, MeshOptions, Units};
+use splineface::face::{
+    Deformation, ExpressionPrior, MeanFace, MeshOptions, PhotoSpaceFit, RefineOptions, RefineView, Units,
+    Window,
+};
 use splineface::landmarker::ShapePredictor;
 use splineface::mesh::TriangleMesh;
 use splineface::pipeline::{Input, PhotoImage, PipelineOptions, Reconstruction, reconstruct};
@@ -56,6 +59,8 @@ struct Args {
     space_modes: usize,
     /// Where `--signed-maps` writes each reconstruction's signed depth error.
     signed_maps: Option<PathBuf>,
+    /// `--from-truth`: refine from the ICT subjects' true weights too.
+    from_truth: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -76,6 +81,7 @@ fn parse_args() -> Result<Args> {
         ict: shared.join("data/ict-face"),
         space_modes: SPACE_MODES,
         signed_maps: None,
+        from_truth: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -100,6 +106,7 @@ fn parse_args() -> Result<Args> {
             "--ict" => args.ict = value()?.into(),
             "--space-modes" => args.space_modes = value()?.parse()?,
             "--signed-maps" => args.signed_maps = Some(value()?.into()),
+            "--from-truth" => args.from_truth = true,
             other => bail!("unknown argument {other}"),
         }
     }
@@ -280,6 +287,168 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
             per[per.len() / 2]
         })
         .collect()
+}
+
+/// `--from-truth`: for every set of an ICT subject, the default refinement run twice on the
+/// landmark fit's photos and cameras: from the landmark fit's identity weights (as the
+/// pipeline runs it) and from the subject's true weights (the face space cut to
+/// `--space-modes`; with 60 the truth lies in it exactly). Each kept whole, scored as the
+/// pipeline's faces are, with the photos' disagreement at the end. When the refinement
+/// started from the truth also ends far from it, on a state the photos agree on at least
+/// as well, the photos' agreement is best away from the face (the objective, not the
+/// search, is at fault). Writes `from-truth.md`.
+fn from_truth(
+    sets: &[Set<'_>],
+    subjects: &[Subject],
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    ict: &Ict,
+    baselines: &[InnerFaceScore],
+    args: &Args,
+) -> Result<()> {
+    let mut chosen = reference.clone();
+    if let Some(modes) = reference.space_modes() {
+        chosen = chosen
+            .with_space(Some(modes.truncated(args.space_modes)))
+            .map_err(anyhow::Error::msg)?;
+    }
+    let space = chosen.face_space().context("the reference has no face space")?;
+    let landmark_only = PipelineOptions {
+        refine: None,
+        ..PipelineOptions::default()
+    };
+    let windows = [
+        ("in the image (the default)", Window::Image),
+        ("on the surface", Window::Surface),
+        ("on the surface, the shading divided out", Window::Shaded),
+    ];
+    let units = landmark_only.units;
+    let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
+    let mut page = format!(
+        "# The refinement started from the truth\n\nMade by `{}`. The face space: the first {} identity modes. \
+         Ratios to the mean face's error, and in brackets the photos' disagreement: for the \
+         landmark fit and the truth with the cameras alone refined (`RefineOptions::hold_face`), for the refinements at their end (kept whole).\n",
+        command_line(),
+        space.mode_count()
+    );
+    let header = String::from(
+        "| set | landmark fit (its cameras aligned) | refined from it | the truth in the space (its cameras aligned) | refined from the truth | from the truth, landmarks all but ignored (ε = 1000) |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    for (window_name, window) in windows {
+        let refine = RefineOptions {
+            min_gain: Real::NEG_INFINITY,
+            window,
+            ..RefineOptions::default()
+        };
+        page.push_str(&format!("\n## The window {window_name}\n\n{header}"));
+        for set in sets {
+            let subject = &subjects[set.subject];
+            let Some(index) = subject
+                .name
+                .strip_prefix("ict-")
+                .and_then(|i| i.parse::<usize>().ok())
+            else {
+                continue;
+            };
+            let mut inputs = Vec::new();
+            for (key, photo) in &set.photos {
+                if let Some(ibug) = landmarks.of(key, photo) {
+                    inputs.push(Input {
+                        points: PhotoPoints::from_ibug68(photo.name.clone(), &ibug)?,
+                        image: Some(PhotoImage::from_dynamic(&photo.image)?),
+                    });
+                }
+            }
+            let Ok(result) = reconstruct(&inputs, &chosen, &landmark_only, |_| {}) else {
+                continue;
+            };
+            let fit = result.space.as_ref().context("a face-space fit")?;
+            let kept: Vec<&Input> = result
+                .photo_fits
+                .iter()
+                .map(|f| {
+                    inputs
+                        .iter()
+                        .find(|i| i.points.name == f.name)
+                        .context("a kept photo")
+                })
+                .collect::<Result<_>>()?;
+            let points: Vec<Vec<Point2<Real>>> = kept
+                .iter()
+                .zip(&fit.outline_shifts)
+                .map(|(input, shifts)| {
+                    input
+                        .points
+                        .y_up()
+                        .iter()
+                        .zip(shifts)
+                        .map(|(p, s)| p + s)
+                        .collect()
+                })
+                .collect();
+            let views: Vec<RefineView<'_>> = kept
+                .iter()
+                .zip(&points)
+                .map(|(input, points)| RefineView {
+                    image: &input.image.as_ref().expect("given").grey,
+                    points,
+                })
+                .collect();
+            let baseline = baselines[set.subject].distance.mean;
+            let scored = |w: &[Real]| -> Result<Real> {
+                let face = space.face(&chosen, w)?;
+                let mesh = face
+                    .mesh(&landmark_only.mesh)?
+                    .mesh
+                    .transformed(&units.transform());
+                let structure: Vec<Point3<Real>> = space
+                    .structure(w)?
+                    .iter()
+                    .map(|p| p * units.per_canonical_unit())
+                    .collect();
+                Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
+            };
+            let truth: Vec<Real> = subjects::ict_weights(ict, index, 16)[..space.mode_count()].to_vec();
+            let from_fit = space.refine_photos(&chosen, fit, &views, &weights, &refine)?;
+            let truth_fit = PhotoSpaceFit {
+                weights: truth.clone(),
+                ..fit.clone()
+            };
+            let from_truth = space.refine_photos(&chosen, &truth_fit, &views, &weights, &refine)?;
+            let loose = RefineOptions {
+                noise: 1000.0,
+                ..refine
+            };
+            let photos_only = space.refine_photos(&chosen, &truth_fit, &views, &weights, &loose)?;
+            let held = RefineOptions {
+                hold_face: true,
+                ..refine
+            };
+            let fit_cameras = space.refine_photos(&chosen, fit, &views, &weights, &held)?;
+            let truth_cameras = space.refine_photos(&chosen, &truth_fit, &views, &weights, &held)?;
+            let row = format!(
+                "| {} | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) |",
+                set.label,
+                scored(&fit.weights)?,
+                fit_cameras.disagreement.1,
+                scored(&from_fit.weights)?,
+                from_fit.disagreement.1,
+                scored(&truth)?,
+                truth_cameras.disagreement.1,
+                scored(&from_truth.weights)?,
+                from_truth.disagreement.1,
+                scored(&photos_only.weights)?,
+                photos_only.disagreement.1,
+            );
+            eprintln!("{row}");
+            page.push_str(&row);
+            page.push('\n');
+        }
+    }
+    std::fs::write(args.out.join("from-truth.md"), page)?;
+    eprintln!("wrote {}", args.out.join("from-truth.md").display());
+    Ok(())
 }
 
 /// The modes of the face space the methods may use (see `Method::reference`).
@@ -1040,7 +1209,6 @@ fn expressions(
 
 /// The methods compared: the default first, then one change from it each.
 fn methods(names: &[String]) -> Result<Vec<Method>> {
-    use splineface::face::RefineOptions;
     use splineface::pipeline::{Shape, StructureWeight};
     let default = PipelineOptions::default();
     let soft = |min_gain, full_gain| RefineOptions {
@@ -1460,6 +1628,17 @@ fn main() -> Result<()> {
     if args.perspective {
         perspective(&subjects, &mut landmarks, reference, &args)?;
         return Ok(());
+    }
+    if args.from_truth {
+        return from_truth(
+            &sets,
+            &subjects,
+            &mut landmarks,
+            reference,
+            &ict,
+            &baselines,
+            &args,
+        );
     }
     if args.expressions {
         let ict_skins: Vec<&subjects::Skin> = skins.iter().collect();

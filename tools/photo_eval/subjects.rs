@@ -429,7 +429,7 @@ pub fn ict_subject(ict: &Ict, index: usize, seed: u64, skin: &Skin) -> Result<Su
 }
 
 /// The identity weights of [`ict_subject`] `index`.
-fn ict_weights(ict: &Ict, index: usize, seed: u64) -> Vec<Real> {
+pub fn ict_weights(ict: &Ict, index: usize, seed: u64) -> Vec<Real> {
     let mut rng = Lcg(seed.wrapping_mul(0x9E37_79B9).wrapping_add(index as u64 + 1));
     (0..ict.modes).map(|_| rng.gaussian()).collect()
 }
