@@ -135,6 +135,12 @@ pub struct RefineOptions {
     pub perspective: bool,
     /// Where the local normalisation's window lies.
     pub window: Window,
+    /// The local normalisation window's Gaussian deviation, eye distances
+    /// ([`NORMALISATION_EYES`] by default). Wider windows take in more of each photo's
+    /// shading: with the window in the image, 0.25 and 0.5 eye distances moved the refined
+    /// faces further from the truth (mean ratio to the mean face 0.86 and 0.89 against 0.74 on
+    /// twelve sets of the ICT identities, `tools/results/from-truth.md`).
+    pub window_eyes: Real,
     /// Also fit a depth displacement of every control point (the detail the space cannot
     /// carry), held by a thin-plate smoothness ([`RefineOptions::field_bend`]) and a ridge
     /// ([`RefineOptions::field_sigma`]). Off by default: on `tools/photo_eval` (105 sets,
@@ -330,6 +336,7 @@ impl Default for RefineOptions {
             noise: 4.0,
             perspective: true,
             window: Window::Image,
+            window_eyes: NORMALISATION_EYES,
             field: false,
             field_bend: 3.0,
             field_sigma: 10.0,
@@ -825,12 +832,14 @@ struct Samples {
 }
 
 impl Samples {
-    /// `expressions[i]`: photo `i`'s expression as a displacement of every control point.
+    /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
+    /// `window_eyes` the local normalisation's window on the surface ([`neighbours`]).
     fn new(
         space: &FaceSpace,
         reference: &ReferenceFace,
         expressions: &[Vec<Vector3<Real>>],
         spacing: Real,
+        window_eyes: Real,
     ) -> Result<Self, FaceError> {
         let frame = reference.frame();
         let mut params = Vec::new();
@@ -894,7 +903,7 @@ impl Samples {
             modes,
             expression,
             normals,
-            neighbours: neighbours(&cells, spacing),
+            neighbours: neighbours(&cells, spacing, window_eyes),
             cells,
             basis,
             spacing,
@@ -946,10 +955,10 @@ type Placed = (Point3<Real>, Real);
 
 /// Each sample's neighbours within two window deviations on the sample grid (`cells`, the
 /// samples' grid coordinates), with their Gaussian weights: the window of the local
-/// normalisation, [`NORMALISATION_EYES`] eye distances (50 units each) or one and a half
-/// samples' spacings, whichever is larger.
-fn neighbours(cells: &[(i64, i64)], spacing: Real) -> Vec<Vec<(usize, Real)>> {
-    let sigma = (NORMALISATION_EYES * 50.0).max(1.5 * spacing) / spacing;
+/// normalisation, `window_eyes` eye distances (50 units each) or one and a half samples'
+/// spacings, whichever is larger.
+fn neighbours(cells: &[(i64, i64)], spacing: Real, window_eyes: Real) -> Vec<Vec<(usize, Real)>> {
+    let sigma = (window_eyes * 50.0).max(1.5 * spacing) / spacing;
     let reach = (2.0 * sigma).ceil() as i64;
     let index: std::collections::HashMap<(i64, i64), usize> =
         cells.iter().enumerate().map(|(s, &c)| (c, s)).collect();
@@ -2017,7 +2026,7 @@ impl FaceSpace {
     ///
     /// # Errors
     /// [`FaceError::Option`] when the views do not match the fit, or for options out of range
-    /// (levels not 1 to 6; the eye pixels, spacing, `σ`, `β` or `ε` not positive and finite).
+    /// (levels not 1 to 6; the eye pixels, spacing, `σ`, `β`, `ε` or window not positive and finite).
     pub fn refine_photos(
         &self,
         reference: &ReferenceFace,
@@ -2304,12 +2313,20 @@ impl FaceSpace {
                         let eye = 50.0 * camera.scale;
                         let factor = (eye_pixels / eye).min(1.0);
                         let window =
-                            (options.window == Window::Image).then_some(NORMALISATION_EYES * eye * factor);
+                            (options.window == Window::Image).then_some(options.window_eyes * eye * factor);
                         LevelImage::new(v.image, *b, factor, window)
                     })
                     .collect()
             },
-            || Samples::new(self, reference, &problem.expression_grids, spacing),
+            || {
+                Samples::new(
+                    self,
+                    reference,
+                    &problem.expression_grids,
+                    spacing,
+                    options.window_eyes,
+                )
+            },
         );
         let samples = samples?;
         let mut level = Level {
@@ -2393,6 +2410,7 @@ fn check_refine(
         ("sigma", options.sigma),
         ("beta", options.beta),
         ("noise", options.noise),
+        ("window eyes", options.window_eyes),
     ] {
         if !positive(v) {
             return bad(name, v.to_string(), "positive and finite");

@@ -535,6 +535,13 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
             },
             "full gain",
         ),
+        (
+            RefineOptions {
+                window_eyes: 0.0,
+                ..RefineOptions::default()
+            },
+            "window eyes",
+        ),
     ] {
         match refine(&views, &options) {
             Err(FaceError::Option { name: got, .. }) => assert_eq!(got, name),

@@ -318,9 +318,19 @@ fn from_truth(
         ..PipelineOptions::default()
     };
     let windows = [
-        ("in the image (the default)", Window::Image),
-        ("on the surface", Window::Surface),
-        ("on the surface, the shading divided out", Window::Shaded),
+        (
+            "in the image, 0.12 eye distances (the default)",
+            Window::Image,
+            0.12,
+        ),
+        ("in the image, 0.25 eye distances", Window::Image, 0.25),
+        ("in the image, 0.5 eye distances", Window::Image, 0.5),
+        ("on the surface, 0.12 eye distances", Window::Surface, 0.12),
+        (
+            "on the surface, the shading divided out, 0.12 eye distances",
+            Window::Shaded,
+            0.12,
+        ),
     ];
     let units = landmark_only.units;
     let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
@@ -335,10 +345,11 @@ fn from_truth(
         "| set | landmark fit (its cameras aligned) | refined from it | the truth in the space (its cameras aligned) | refined from the truth | from the truth, landmarks all but ignored (ε = 1000) |\n\
          |---|---|---|---|---|---|\n",
     );
-    for (window_name, window) in windows {
+    for (window_name, window, window_eyes) in windows {
         let refine = RefineOptions {
             min_gain: Real::NEG_INFINITY,
             window,
+            window_eyes,
             ..RefineOptions::default()
         };
         page.push_str(&format!("\n## The window {window_name}\n\n{header}"));
