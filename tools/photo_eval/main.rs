@@ -289,13 +289,15 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
-/// `--from-truth`: for every set of an ICT subject, the default refinement run twice on the
-/// landmark fit's photos and cameras: from the landmark fit's identity weights (as the
-/// pipeline runs it) and from the subject's true weights (the face space cut to
-/// `--space-modes`; with 60 the truth lies in it exactly). Each kept whole, scored as the
-/// pipeline's faces are, with the photos' disagreement at the end. When the refinement
-/// started from the truth also ends far from it, on a state the photos agree on at least
-/// as well, the photos' agreement is best away from the face (the objective, not the
+/// `--from-truth`: for every set of an ICT subject and each of several normalisation
+/// windows, the default refinement (kept whole) on the landmark fit's photos and cameras:
+/// the landmark fit's face and the subject's true one (the face space cut to
+/// `--space-modes`; with 60 the truth lies in it exactly) with only their cameras refined
+/// (`RefineOptions::hold_face`), the refinement from the landmark fit's weights (as the
+/// pipeline runs it), from the true weights, and from the true weights with the landmarks
+/// all but ignored (ε = 1000). Each face scored as the pipeline's are, with the photos'
+/// disagreement at the end. When the truth leaves the photos disagreeing more than the
+/// refined face, the photos' agreement is best away from the face (the objective, not the
 /// search, is at fault). Writes `from-truth.md`.
 fn from_truth(
     sets: &[Set<'_>],
@@ -420,7 +422,7 @@ fn from_truth(
                     .collect();
                 Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
             };
-            let truth: Vec<Real> = subjects::ict_weights(ict, index, 16)[..space.mode_count()].to_vec();
+            let truth: Vec<Real> = subjects::ict_weights(ict, index, ICT_SEED)[..space.mode_count()].to_vec();
             let from_fit = space.refine_photos(&chosen, fit, &views, &weights, &refine)?;
             let truth_fit = PhotoSpaceFit {
                 weights: truth.clone(),
@@ -461,6 +463,9 @@ fn from_truth(
     eprintln!("wrote {}", args.out.join("from-truth.md").display());
     Ok(())
 }
+
+/// The seed of the ICT subjects' identity weights (`subjects::ict_subject`).
+const ICT_SEED: u64 = 16;
 
 /// The modes of the face space the methods may use (see `Method::reference`).
 const SPACE_MODES: usize = 40;
@@ -1102,10 +1107,10 @@ fn expressions(
     let mut subjects = Vec::new();
     for k in 0..args.ict_subjects {
         let skin = skins[k % skins.len()];
-        let mut row = vec![subjects::ict_subject(ict, k, 16, skin)?];
+        let mut row = vec![subjects::ict_subject(ict, k, ICT_SEED, skin)?];
         for expression in EXPRESSIONS {
             row.push(subjects::ict_subject_with_expression(
-                ict, k, 16, expression, skin,
+                ict, k, ICT_SEED, expression, skin,
             )?);
         }
         subjects.push(row);
@@ -1567,7 +1572,7 @@ fn main() -> Result<()> {
         let _ = k;
     }
     for k in 0..args.ict_subjects {
-        subjects.push(subjects::ict_subject(&ict, k, 16, &skins[k % skins.len()])?);
+        subjects.push(subjects::ict_subject(&ict, k, ICT_SEED, &skins[k % skins.len()])?);
     }
     let mut pools: Vec<Vec<Photo>> = Vec::new();
     for subject in &subjects {
