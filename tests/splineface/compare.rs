@@ -49,12 +49,18 @@ fn umeyama_recovers_a_similarity() {
     assert!(fit_similarity(&line, &line).is_none());
 }
 
-#[test]
-fn the_same_face_moved_compares_as_identical() {
+/// The truth and its structure, and both moved by [`similarity`].
+fn truth_and_moved() -> (TriangleMesh, Vec<Point3<Real>>, TriangleMesh, Vec<Point3<Real>>) {
     let (mesh, structure) = truth();
     let s = similarity();
     let moved = mesh.transformed(&nalgebra::Affine3::from_matrix_unchecked(s.to_homogeneous()));
     let moved_structure: Vec<Point3<Real>> = structure.iter().map(|p| s * p).collect();
+    (mesh, structure, moved, moved_structure)
+}
+
+#[test]
+fn the_same_face_moved_compares_as_identical() {
+    let (mesh, structure, moved, moved_structure) = truth_and_moved();
     let result = compare(
         &moved,
         &mesh,
@@ -80,10 +86,7 @@ fn the_inner_face_keeps_the_truths_heights_where_it_scores() {
     // The same face moved: once aligned it lies on the truth, so its front heights are the
     // truth's at every sample of the inner face, and the truth's heights are NaN exactly where
     // no distance was scored.
-    let (mesh, structure) = truth();
-    let s = similarity();
-    let moved = mesh.transformed(&nalgebra::Affine3::from_matrix_unchecked(s.to_homogeneous()));
-    let moved_structure: Vec<Point3<Real>> = structure.iter().map(|p| s * p).collect();
+    let (mesh, structure, moved, moved_structure) = truth_and_moved();
     let c = inner_face_score(
         &moved,
         &mesh,

@@ -328,16 +328,19 @@ fn a_refinement_turned_down_gives_back_the_landmark_fit() {
 fn holding_the_face_refines_the_cameras_alone() {
     let scene = scene(&[1.5, -1.0, 1.0]);
     let (weights, fit, views) = landmark_fit(&scene);
-    let options = RefineOptions {
-        levels: 1,
-        min_gain: Real::NEG_INFINITY,
-        hold_face: true,
-        ..RefineOptions::default()
+    let run = |hold_face| {
+        let options = RefineOptions {
+            levels: 1,
+            min_gain: Real::NEG_INFINITY,
+            hold_face,
+            ..RefineOptions::default()
+        };
+        scene
+            .space
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
+            .unwrap()
     };
-    let held = scene
-        .space
-        .refine_photos(scene.reference, &fit, &views, &weights, &options)
-        .unwrap();
+    let held = run(true);
     assert!(held.accepted, "{}", held.note);
     assert_eq!(held.weights, fit.weights);
     assert!(
@@ -355,20 +358,7 @@ fn holding_the_face_refines_the_cameras_alone() {
         "no camera moved"
     );
     // Not held, the same refinement moves the face.
-    let free = scene
-        .space
-        .refine_photos(
-            scene.reference,
-            &fit,
-            &views,
-            &weights,
-            &RefineOptions {
-                hold_face: false,
-                ..options
-            },
-        )
-        .unwrap();
-    assert_ne!(free.weights, fit.weights);
+    assert_ne!(run(false).weights, fit.weights);
 }
 
 /// A fall of the disagreement short of `full_gain` keeps that share of the way from the landmark

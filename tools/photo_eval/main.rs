@@ -308,12 +308,7 @@ fn from_truth(
     baselines: &[InnerFaceScore],
     args: &Args,
 ) -> Result<()> {
-    let mut chosen = reference.clone();
-    if let Some(modes) = reference.space_modes() {
-        chosen = chosen
-            .with_space(Some(modes.truncated(args.space_modes)))
-            .map_err(anyhow::Error::msg)?;
-    }
+    let chosen = space_cut(reference, args.space_modes)?;
     let space = chosen.face_space().context("the reference has no face space")?;
     let landmark_only = PipelineOptions {
         refine: None,
@@ -1068,16 +1063,22 @@ impl Method {
     /// outside it anyway; 60 lets the space recall them, a diagnostic of what the fit makes of
     /// a face the space holds), and without its photo structure for `vertex_structure`.
     fn reference(&self, reference: &ReferenceFace, space_modes: usize) -> Result<ReferenceFace> {
-        let mut chosen = reference.clone();
-        if let Some(modes) = reference.space_modes() {
-            chosen = chosen
-                .with_space(Some(modes.truncated(space_modes)))
-                .map_err(anyhow::Error::msg)?;
-        }
+        let mut chosen = space_cut(reference, space_modes)?;
         if self.vertex_structure {
             chosen = chosen.with_photo_structure(None).map_err(anyhow::Error::msg)?;
         }
         Ok(chosen)
+    }
+}
+
+/// `reference` with its face space (if any) cut to its first `modes` modes.
+fn space_cut(reference: &ReferenceFace, modes: usize) -> Result<ReferenceFace> {
+    match reference.space_modes() {
+        Some(space) => reference
+            .clone()
+            .with_space(Some(space.truncated(modes)))
+            .map_err(anyhow::Error::msg),
+        None => Ok(reference.clone()),
     }
 }
 
