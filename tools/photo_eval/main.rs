@@ -1717,6 +1717,10 @@ fn main() -> Result<()> {
     counts.sort_unstable();
     counts.dedup();
 
+    // The modes the methods' space has (the embedded reference's are ICT's).
+    let space_modes = reference
+        .space_modes()
+        .map_or(0, |m| m.sigma.len().min(args.space_modes));
     let mut page = String::new();
     writeln!(page, "# Photo-realistic evaluation\n")?;
     writeln!(
@@ -1743,8 +1747,8 @@ fn main() -> Result<()> {
         args.pool,
         args.counts,
         args.seeds,
-        args.space_modes,
-        if args.space_modes >= 60 {
+        space_modes,
+        if space_modes >= ict.modes {
             " (the ICT subjects' own space: the fit can recall them)"
         } else {
             " (the ICT subjects have more: the space must generalise)"
