@@ -11,7 +11,7 @@
 //! two disjoint halves of 16 photos test self-consistency.
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
-//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth] [--flat-light]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -61,6 +61,8 @@ struct Args {
     signed_maps: Option<PathBuf>,
     /// `--from-truth`: refine from the ICT subjects' true weights too.
     from_truth: bool,
+    /// `--flat-light`: the pools lit by ambient light alone.
+    flat_light: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -82,6 +84,7 @@ fn parse_args() -> Result<Args> {
         space_modes: SPACE_MODES,
         signed_maps: None,
         from_truth: false,
+        flat_light: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -107,6 +110,7 @@ fn parse_args() -> Result<Args> {
             "--space-modes" => args.space_modes = value()?.parse()?,
             "--signed-maps" => args.signed_maps = Some(value()?.into()),
             "--from-truth" => args.from_truth = true,
+            "--flat-light" => args.flat_light = true,
             other => bail!("unknown argument {other}"),
         }
     }
@@ -1578,13 +1582,17 @@ fn main() -> Result<()> {
     let mut pools: Vec<Vec<Photo>> = Vec::new();
     for subject in &subjects {
         let max_yaw = if subject.name == "lps" { 60.0 } else { 45.0 };
-        let dir = photos::render_pool(
+        let dir = photos::render_pool_lit(
             subject,
             args.pool,
             max_yaw,
             photos::DISTANCES,
             7,
-            &args.out.join("pools").join(&subject.name),
+            &args
+                .out
+                .join(if args.flat_light { "pools-flat" } else { "pools" })
+                .join(&subject.name),
+            args.flat_light,
         )?;
         pools.push(photos::read_set(&dir)?);
         eprintln!(

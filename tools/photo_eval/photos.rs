@@ -128,9 +128,27 @@ pub fn render_pool(
     seed: u64,
     dir: &Path,
 ) -> Result<PathBuf> {
+    render_pool_lit(subject, count, max_yaw, distances, seed, dir, false)
+}
+
+/// [`render_pool`], with `flat`: every photo lit by ambient light alone (no directional light,
+/// shading, shadows or sheen; the same poses, cameras, backgrounds, blur and noise), a
+/// diagnostic of what the light does to the refinement (`--flat-light`).
+pub fn render_pool_lit(
+    subject: &Subject,
+    count: usize,
+    max_yaw: Real,
+    distances: (Real, Real),
+    seed: u64,
+    dir: &Path,
+    flat: bool,
+) -> Result<PathBuf> {
     let mut stamp = format!("{POOL_VERSION} {} {count} {max_yaw} {seed}", subject.name);
     if distances != DISTANCES {
         stamp += &format!(" {}-{}", distances.0, distances.1);
+    }
+    if flat {
+        stamp += " flat";
     }
     let stamp_path = dir.join("pool.txt");
     if std::fs::read_to_string(&stamp_path).ok().as_deref() == Some(stamp.as_str()) {
@@ -142,7 +160,15 @@ pub fn render_pool(
     let mut rng = Lcg(seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ 0x5EED);
     let mut records = Vec::new();
     for k in 0..count {
-        let shot = draw_shot(&mut rng, max_yaw, distances, seed.wrapping_add(k as u64));
+        let mut shot = draw_shot(&mut rng, max_yaw, distances, seed.wrapping_add(k as u64));
+        if flat {
+            shot.lighting = Lighting {
+                diffuse: 0.0,
+                ambient: 1.0,
+                specular: 0.0,
+                ..shot.lighting
+            };
+        }
         let focal = shot.face_fraction * width as Real * shot.distance / face_width;
         let camera =
             Camera::looking_at_head(shot.ypr, &subject.target, shot.distance, focal, (width, height));
