@@ -804,6 +804,7 @@ fn perspective(
                         .out
                         .join("pools-perspective")
                         .join(format!("{}-{}", subject.name, distances.0)),
+                    false,
                 )?;
                 let mut pool = photos::read_set(&dir)?;
                 if projected {
@@ -974,6 +975,7 @@ fn calibrate(
             photos::DISTANCES,
             11,
             &args.out.join("pools").join(&face.name),
+            false,
         )?;
         let pool = photos::read_set(&dir)?;
         for seed in 0..3u64 {
@@ -1131,6 +1133,7 @@ fn expressions(
                 photos::DISTANCES,
                 7,
                 &args.out.join("pools").join(&subject.name),
+                false,
             )?;
             pool_row.push(photos::read_set(&dir)?);
         }
@@ -1582,7 +1585,7 @@ fn main() -> Result<()> {
     let mut pools: Vec<Vec<Photo>> = Vec::new();
     for subject in &subjects {
         let max_yaw = if subject.name == "lps" { 60.0 } else { 45.0 };
-        let dir = photos::render_pool_lit(
+        let dir = photos::render_pool(
             subject,
             args.pool,
             max_yaw,

@@ -119,22 +119,11 @@ pub const DISTANCES: (Real, Real) = (400.0, 2000.0);
 
 /// `count` photos of `subject` under random poses (yaw within ±`max_yaw`), distances (within
 /// `distances`, mm), focal lengths (the face 22–45% of the width) and lights, rendered into
-/// `dir` (reused when `dir` already holds this pool).
+/// `dir` (reused when `dir` already holds this pool). With `flat` every photo is lit by ambient
+/// light alone (no directional light, shading, shadows or sheen; the same poses, cameras,
+/// backgrounds, blur and noise), a diagnostic of what the light does to the refinement
+/// (`--flat-light`).
 pub fn render_pool(
-    subject: &Subject,
-    count: usize,
-    max_yaw: Real,
-    distances: (Real, Real),
-    seed: u64,
-    dir: &Path,
-) -> Result<PathBuf> {
-    render_pool_lit(subject, count, max_yaw, distances, seed, dir, false)
-}
-
-/// [`render_pool`], with `flat`: every photo lit by ambient light alone (no directional light,
-/// shading, shadows or sheen; the same poses, cameras, backgrounds, blur and noise), a
-/// diagnostic of what the light does to the refinement (`--flat-light`).
-pub fn render_pool_lit(
     subject: &Subject,
     count: usize,
     max_yaw: Real,
