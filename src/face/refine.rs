@@ -1527,13 +1527,20 @@ impl Level<'_> {
     /// The robust consistency cost.
     fn consistency_cost(&self, state: &State, visibility: &[Vec<Real>]) -> Real {
         let c = 2.0 * self.options.sigma;
-        self.per_sample(state, visibility, |seen, _, mean| sample_cost(seen, mean, c))
-            // Summed in order: the same result whatever the threads.
-            .iter()
-            .flatten()
-            .sum::<Real>()
-            * self.options.beta
-            / (self.options.sigma * self.options.sigma)
+        self.scaled_consistency(
+            self.per_sample(state, visibility, |seen, _, mean| sample_cost(seen, mean, c))
+                // Summed in order: the same result whatever the threads.
+                .iter()
+                .flatten()
+                .sum::<Real>(),
+        )
+    }
+
+    /// The consistency cost from its per-sample terms' sum ([`sample_cost`]): times `β / σ²`,
+    /// in one order of operations for [`Level::consistency_cost`] and
+    /// [`Level::normal_equations`], whose costs must agree to the bit.
+    fn scaled_consistency(&self, sum: Real) -> Real {
+        sum * self.options.beta / (self.options.sigma * self.options.sigma)
     }
 
     /// The whole cost.
@@ -1840,7 +1847,7 @@ impl Level<'_> {
         for t in held_face.chain(held_cameras) {
             hold(&mut h, &mut g, t);
         }
-        let cost = consistency * self.options.beta / (self.options.sigma * self.options.sigma)
+        let cost = self.scaled_consistency(consistency)
             + self.landmarks.cost(state, self.options)
             + self.prior(state);
         (h, g, cost)

@@ -11,7 +11,8 @@
 //! two disjoint halves of 16 photos test self-consistency.
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
-//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth] [--flat-light]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]
+//! [--flat-light]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -138,33 +139,37 @@ fn command_line() -> String {
 }
 
 fn score(mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> Result<InnerFaceScore> {
+    Ok(comparison(mesh, structure, subject)?.score)
+}
+
+/// `mesh` (with its structure) against `subject`'s truth over the inner face, as [`score`]
+/// scores it, with the maps.
+fn comparison(
+    mesh: &TriangleMesh,
+    structure: &[Point3<Real>],
+    subject: &Subject,
+) -> Result<splineface::compare::InnerFaceComparison> {
     Ok(inner_face_score(
         mesh,
         &subject.truth,
         (structure, &subject.structure),
         &InnerFaceOptions::default(),
-    )?
-    .score)
+    )?)
 }
 
 /// `--signed-maps DIR`, set once by `main`.
 static SIGNED_MAPS: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
 
-/// With `--signed-maps DIR`: writes `mesh`'s signed error over `subject`'s inner face to
-/// `DIR/NAME.bin`: the score's truth → surface distance (mm), positive where the aligned
-/// reconstruction lies in front of the truth (its front height above the truth's), negative
-/// behind; a line "width height", then the raster's f32 values (little-endian; `NaN` outside
-/// the inner face and where the reconstruction does not cover it).
-fn signed_diag(name: &str, mesh: &TriangleMesh, structure: &[Point3<Real>], subject: &Subject) -> Result<()> {
+/// With `--signed-maps DIR`: writes the signed error of comparison `c` ([`comparison`]) over
+/// the truth's inner face to `DIR/NAME.bin`: the score's truth → surface distance (mm),
+/// positive where the aligned reconstruction lies in front of the truth (its front height
+/// above the truth's), negative behind; a line "width height", then the raster's f32 values
+/// (little-endian; `NaN` outside the inner face and where the reconstruction does not cover
+/// it).
+fn signed_diag(name: &str, c: &splineface::compare::InnerFaceComparison) -> Result<()> {
     let Some(dir) = SIGNED_MAPS.get() else {
         return Ok(());
     };
-    let c = inner_face_score(
-        mesh,
-        &subject.truth,
-        (structure, &subject.structure),
-        &InnerFaceOptions::default(),
-    )?;
     let front = splineface::mesh::front_heights(&c.aligned, &c.raster);
     let mut bytes = format!("{} {}\n", c.raster.width, c.raster.height).into_bytes();
     for ((f, t), d) in front.iter().zip(&c.truth_heights).zip(&c.distances) {
@@ -346,117 +351,117 @@ fn from_truth(
         "| set | landmark fit (its cameras aligned) | refined from it | the truth in the space (its cameras aligned) | refined from the truth | from the truth, landmarks all but ignored (ε = 1000) |\n\
          |---|---|---|---|---|---|\n",
     );
-    for (window_name, window, window_eyes) in windows {
-        let refine = RefineOptions {
-            min_gain: Real::NEG_INFINITY,
-            window,
-            window_eyes,
-            ..RefineOptions::default()
+    // The landmark fit, its views and the window-free scores once per set; the refinements
+    // per window.
+    let mut rows: Vec<String> = vec![String::new(); windows.len()];
+    for set in sets {
+        let subject = &subjects[set.subject];
+        let Some(index) = subject
+            .name
+            .strip_prefix("ict-")
+            .and_then(|i| i.parse::<usize>().ok())
+        else {
+            continue;
         };
-        page.push_str(&format!("\n## The window {window_name}\n\n{header}"));
-        for set in sets {
-            let subject = &subjects[set.subject];
-            let Some(index) = subject
-                .name
-                .strip_prefix("ict-")
-                .and_then(|i| i.parse::<usize>().ok())
-            else {
-                continue;
-            };
-            let mut inputs = Vec::new();
-            for (key, photo) in &set.photos {
-                if let Some(ibug) = landmarks.of(key, photo) {
-                    inputs.push(Input {
-                        points: PhotoPoints::from_ibug68(photo.name.clone(), &ibug)?,
-                        image: Some(PhotoImage::from_dynamic(&photo.image)?),
-                    });
-                }
-            }
-            let Ok(result) = reconstruct(&inputs, &chosen, &landmark_only, |_| {}) else {
-                continue;
-            };
-            let fit = result.space.as_ref().context("a face-space fit")?;
-            let kept: Vec<&Input> = result
-                .photo_fits
-                .iter()
-                .map(|f| {
-                    inputs
-                        .iter()
-                        .find(|i| i.points.name == f.name)
-                        .context("a kept photo")
-                })
-                .collect::<Result<_>>()?;
-            let points: Vec<Vec<Point2<Real>>> = kept
-                .iter()
-                .zip(&fit.outline_shifts)
-                .map(|(input, shifts)| {
-                    input
-                        .points
-                        .y_up()
-                        .iter()
-                        .zip(shifts)
-                        .map(|(p, s)| p + s)
-                        .collect()
-                })
-                .collect();
-            let views: Vec<RefineView<'_>> = kept
-                .iter()
-                .zip(&points)
-                .map(|(input, points)| RefineView {
-                    image: &input.image.as_ref().expect("given").grey,
-                    points,
-                })
-                .collect();
-            let baseline = baselines[set.subject].distance.mean;
-            let scored = |w: &[Real]| -> Result<Real> {
-                let face = space.face(&chosen, w)?;
-                let mesh = face
-                    .mesh(&landmark_only.mesh)?
-                    .mesh
-                    .transformed(&units.transform());
-                let structure: Vec<Point3<Real>> = space
-                    .structure(w)?
+        let (inputs, _) = set_inputs(set, landmarks)?;
+        let Ok(result) = reconstruct(&inputs, &chosen, &landmark_only, |_| {}) else {
+            continue;
+        };
+        let fit = result.space.as_ref().context("a face-space fit")?;
+        let kept: Vec<&Input> = result
+            .photo_fits
+            .iter()
+            .map(|f| {
+                inputs
                     .iter()
-                    .map(|p| p * units.per_canonical_unit())
-                    .collect();
-                Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
+                    .find(|i| i.points.name == f.name)
+                    .context("a kept photo")
+            })
+            .collect::<Result<_>>()?;
+        let points: Vec<Vec<Point2<Real>>> = kept
+            .iter()
+            .zip(&fit.outline_shifts)
+            .map(|(input, shifts)| {
+                input
+                    .points
+                    .y_up()
+                    .iter()
+                    .zip(shifts)
+                    .map(|(p, s)| p + s)
+                    .collect()
+            })
+            .collect();
+        let views: Vec<RefineView<'_>> = kept
+            .iter()
+            .zip(&points)
+            .map(|(input, points)| RefineView {
+                image: &input.image.as_ref().expect("given").grey,
+                points,
+            })
+            .collect();
+        let baseline = baselines[set.subject].distance.mean;
+        let scored = |w: &[Real]| -> Result<Real> {
+            let face = space.face(&chosen, w)?;
+            let mesh = face
+                .mesh(&landmark_only.mesh)?
+                .mesh
+                .transformed(&units.transform());
+            let structure: Vec<Point3<Real>> = space
+                .structure(w)?
+                .iter()
+                .map(|p| p * units.per_canonical_unit())
+                .collect();
+            Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
+        };
+        let truth: Vec<Real> = subjects::ict_weights(ict, index, ICT_SEED)[..space.mode_count()].to_vec();
+        let truth_fit = PhotoSpaceFit {
+            weights: truth.clone(),
+            ..fit.clone()
+        };
+        let (fit_score, truth_score) = (scored(&fit.weights)?, scored(&truth)?);
+        for ((_, window, window_eyes), rows) in windows.iter().zip(&mut rows) {
+            let refine = RefineOptions {
+                min_gain: Real::NEG_INFINITY,
+                window: *window,
+                window_eyes: *window_eyes,
+                ..RefineOptions::default()
             };
-            let truth: Vec<Real> = subjects::ict_weights(ict, index, ICT_SEED)[..space.mode_count()].to_vec();
-            let from_fit = space.refine_photos(&chosen, fit, &views, &weights, &refine)?;
-            let truth_fit = PhotoSpaceFit {
-                weights: truth.clone(),
-                ..fit.clone()
-            };
-            let from_truth = space.refine_photos(&chosen, &truth_fit, &views, &weights, &refine)?;
             let loose = RefineOptions {
                 noise: 1000.0,
                 ..refine
             };
-            let photos_only = space.refine_photos(&chosen, &truth_fit, &views, &weights, &loose)?;
             let held = RefineOptions {
                 hold_face: true,
                 ..refine
             };
-            let fit_cameras = space.refine_photos(&chosen, fit, &views, &weights, &held)?;
-            let truth_cameras = space.refine_photos(&chosen, &truth_fit, &views, &weights, &held)?;
+            let run = |fit: &PhotoSpaceFit, options: &RefineOptions| {
+                space.refine_photos(&chosen, fit, &views, &weights, options)
+            };
+            let from_fit = run(fit, &refine)?;
+            let from_truth = run(&truth_fit, &refine)?;
+            let photos_only = run(&truth_fit, &loose)?;
+            let fit_cameras = run(fit, &held)?;
+            let truth_cameras = run(&truth_fit, &held)?;
             let row = format!(
-                "| {} | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) |",
+                "| {} | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) | {:.2} ({:.3}) |\n",
                 set.label,
-                scored(&fit.weights)?,
+                fit_score,
                 fit_cameras.disagreement.1,
                 scored(&from_fit.weights)?,
                 from_fit.disagreement.1,
-                scored(&truth)?,
+                truth_score,
                 truth_cameras.disagreement.1,
                 scored(&from_truth.weights)?,
                 from_truth.disagreement.1,
                 scored(&photos_only.weights)?,
                 photos_only.disagreement.1,
             );
-            eprintln!("{row}");
-            page.push_str(&row);
-            page.push('\n');
+            eprint!("{row}");
+            rows.push_str(&row);
         }
+    }
+    for ((window_name, _, _), rows) in windows.iter().zip(&rows) {
+        page.push_str(&format!("\n## The window {window_name}\n\n{header}{rows}"));
     }
     std::fs::write(args.out.join("from-truth.md"), page)?;
     eprintln!("wrote {}", args.out.join("from-truth.md").display());
@@ -469,13 +474,9 @@ const ICT_SEED: u64 = 16;
 /// The modes of the face space the methods may use (see `Method::reference`).
 const SPACE_MODES: usize = 40;
 
-fn run_set(
-    set: &Set<'_>,
-    subject: &Subject,
-    landmarks: &mut Landmarks<'_>,
-    reference: &ReferenceFace,
-    options: &PipelineOptions,
-) -> Result<(Outcome, Option<Reconstruction>)> {
+/// The set's photos with the landmarks found on them, as the pipeline takes them, and how many
+/// photos had none.
+fn set_inputs(set: &Set<'_>, landmarks: &mut Landmarks<'_>) -> Result<(Vec<Input>, usize)> {
     let mut inputs = Vec::new();
     let mut undetected = 0;
     for (key, photo) in &set.photos {
@@ -488,6 +489,17 @@ fn run_set(
             image: Some(PhotoImage::from_dynamic(&photo.image)?),
         });
     }
+    Ok((inputs, undetected))
+}
+
+fn run_set(
+    set: &Set<'_>,
+    subject: &Subject,
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+) -> Result<(Outcome, Option<Reconstruction>)> {
+    let (inputs, undetected) = set_inputs(set, landmarks)?;
     if std::env::var("DIAG").is_ok() {
         let greys: Vec<(image::GrayImage, Vec<Point2<Real>>, String)> = set
             .photos
@@ -1643,13 +1655,9 @@ fn main() -> Result<()> {
     let baselines: Vec<InnerFaceScore> = subjects
         .iter()
         .map(|s| {
-            signed_diag(
-                &format!("{}-mean-face", s.name),
-                &mean_face.mesh,
-                &mean_face.structure,
-                s,
-            )?;
-            score(&mean_face.mesh, &mean_face.structure, s)
+            let c = comparison(&mean_face.mesh, &mean_face.structure, s)?;
+            signed_diag(&format!("{}-mean-face", s.name), &c)?;
+            Ok(c.score)
         })
         .collect::<Result<_>>()?;
     let methods = methods(&args.methods)?;
@@ -1702,13 +1710,9 @@ fn main() -> Result<()> {
                 chosen_reference,
                 options,
             )?;
-            if let Some(result) = result {
-                signed_diag(
-                    &format!("{}-{name}", set.label),
-                    &result.output_mesh(),
-                    &result.structure(),
-                    &subjects[set.subject],
-                )?;
+            if let (Some(result), Some(_)) = (result, SIGNED_MAPS.get()) {
+                let c = comparison(&result.output_mesh(), &result.structure(), &subjects[set.subject])?;
+                signed_diag(&format!("{}-{name}", set.label), &c)?;
             }
             outcomes.push(outcome);
         }
