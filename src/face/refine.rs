@@ -78,7 +78,7 @@
 //! a refinement, a photo that disagrees with the others more than most (another light, an
 //! expression, make-up) can be made to count less ([`RefineOptions::photo_weights`]).
 
-use nalgebra::{DMatrix, DVector, Matrix2x3, Point2, Point3, Rotation3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix2x3, Point2, Point3, Rotation3, SVector, Vector2, Vector3};
 use rayon::prelude::*;
 
 use super::FaceError;
@@ -370,6 +370,20 @@ pub enum Window {
     /// the default in [`RefineOptions::default`]: fewer faces made worse than the landmark
     /// fit, but less gained on the others.
     Shaded,
+    /// Analysis by synthesis: each photo is compared with the face *lit*, not with a window
+    /// of itself. The photos' intensities are made linear (the sRGB curve undone), each
+    /// photo's first-order spherical-harmonic lighting is fitted over the **current shape's
+    /// own normals** (the albedo per sample shared by the photos, as [`Window::Shaded`]
+    /// fits it), divided out, and what is left is scaled by a gain and bias per photo (its
+    /// mean and deviation over the samples it sees). The shading stays in the measure: the
+    /// brightness falling off across a nose's side depends on the nose's shape, and the
+    /// Gauss-Newton steps follow it through the normals' derivatives in the identity weights
+    /// (the field's bending of the normals is left out of its Jacobian; the cost is exact).
+    /// Chosen after `tools/photo_eval --from-truth` found that under every window the true
+    /// face left the photos disagreeing more than the refined one: a window of a photo's own
+    /// intensities removes the shading that says where the surface turns, and keeps the
+    /// light's moving edge.
+    Lit,
 }
 
 /// One photo as [`FaceSpace::refine_photos`] takes it.
@@ -629,12 +643,16 @@ struct LevelImage {
 impl LevelImage {
     /// The photo's crop about `box_` (`[x0, y0, x1, y1]` in its pixels, `y` down) at `factor`
     /// crop pixels per photo pixel (at most 1), normalised over `window` crop pixels (a
-    /// Gaussian deviation) when one is given ([`Window::Image`]).
-    fn new(image: &GreyImage, box_: [Real; 4], factor: Real, window: Option<Real>) -> Self {
+    /// Gaussian deviation) when one is given ([`Window::Image`]), its intensities made linear
+    /// (the sRGB curve undone) when `linear` ([`Window::Lit`]).
+    fn new(image: &GreyImage, box_: [Real; 4], factor: Real, window: Option<Real>, linear: bool) -> Self {
         let origin = Vector2::new(box_[0], box_[1]);
         let width = (((box_[2] - box_[0]) * factor).ceil() as usize).max(8);
         let height = (((box_[3] - box_[1]) * factor).ceil() as usize).max(8);
-        let crop = area_sample(image, (origin, factor), (width, height));
+        let mut crop = area_sample(image, (origin, factor), (width, height));
+        if linear {
+            crop.iter_mut().for_each(|v| *v = srgb_to_linear(*v));
+        }
         let crop = blur(&crop, width, height, 0.7);
         let values = match window {
             None => crop,
@@ -708,6 +726,15 @@ impl LevelImage {
         Some((at(&self.values), g))
     }
 }
+/// The sRGB transfer curve undone: an encoded intensity in `[0, 1]` to linear light.
+fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 /// One axis of [`area_sample`]'s samples: for each of `count` crop pixels, `k` bilinear taps
 /// `(first pixel, second pixel, fraction toward the second)` at
 /// `origin + (c + (b + ½)/k − ½)/factor`, clamped to `[0, last]` (as [`GreyImage::sample`]).
@@ -829,17 +856,23 @@ struct Samples {
     basis: Vec<Vec<(usize, Real)>>,
     /// The samples' spacing, canonical units.
     spacing: Real,
+    /// Per sample, the base surface's partial derivatives `(F_u, F_v)` and, per mode, its
+    /// displacement's `(D_u, D_v)`: what the shape's own normals are made of ([`Window::Lit`];
+    /// empty for the other windows).
+    partials: Vec<([Vector3<Real>; 2], Vec<[Vector3<Real>; 2]>)>,
 }
 
 impl Samples {
     /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
-    /// `window_eyes` the local normalisation's window on the surface ([`neighbours`]).
+    /// `window_eyes` the local normalisation's window on the surface ([`neighbours`]);
+    /// `partials` whether to keep the surfaces' partial derivatives ([`Samples::partials`]).
     fn new(
         space: &FaceSpace,
         reference: &ReferenceFace,
         expressions: &[Vec<Vector3<Real>>],
         spacing: Real,
         window_eyes: Real,
+        partials: bool,
     ) -> Result<Self, FaceError> {
         let frame = reference.frame();
         let mut params = Vec::new();
@@ -898,7 +931,28 @@ impl Samples {
             .into_iter()
             .map(|n: Vector3<Real>| if n.z < 0.0 { -n } else { n })
             .collect();
+        let partials = if partials {
+            let mode_surfaces: Vec<_> = (0..surfaces.mode_count())
+                .map(|k| surfaces.mode_surface(k))
+                .collect();
+            let tangents = |surface: &crate::bspline::BSplineSurface, [u, v]: [Real; 2]| {
+                surface.derivatives(u, v, 1).map(|d| [d.get(1, 0), d.get(0, 1)])
+            };
+            params
+                .par_iter()
+                .map(|&q| {
+                    let modes = mode_surfaces
+                        .iter()
+                        .map(|m| tangents(m, q))
+                        .collect::<Result<Vec<_>, _>>()?;
+                    Ok((tangents(base_surface, q)?, modes))
+                })
+                .collect::<Result<Vec<_>, crate::bspline::BSplineError>>()?
+        } else {
+            Vec::new()
+        };
         Ok(Samples {
+            partials,
             base: sampled.base,
             modes,
             expression,
@@ -948,6 +1002,59 @@ impl Samples {
             })
             .collect()
     }
+}
+
+impl Samples {
+    /// Every sample's unit normal on the identity surface at `state` and its derivatives in
+    /// the identity weights ([`Window::Lit`]): with `m = F_u × F_v` (`F = B + Σₖ wₖ Dₖ`),
+    /// `n = m / |m|` and `∂n/∂wₖ = (I − n nᵀ) (Dₖ,ᵤ × F_v + F_u × Dₖ,ᵥ) / |m|`, turned toward
+    /// the mean face's normal. The field's lift and the photos' expressions are left out.
+    fn shape_normals(&self, state: &State) -> Vec<(Vector3<Real>, Vec<Vector3<Real>>)> {
+        self.partials
+            .par_iter()
+            .zip(&self.normals)
+            .map(|(([base_u, base_v], modes), mean_normal)| {
+                let (mut fu, mut fv) = (*base_u, *base_v);
+                for ([du, dv], w) in modes.iter().zip(&state.weights) {
+                    fu += du * *w;
+                    fv += dv * *w;
+                }
+                let m = fu.cross(&fv);
+                let length = m.norm();
+                if !(length > 1e-12) {
+                    return (*mean_normal, vec![Vector3::zeros(); modes.len()]);
+                }
+                let sign = if m.dot(mean_normal) < 0.0 { -1.0 } else { 1.0 };
+                let n = m * (sign / length);
+                let project = |d: Vector3<Real>| (d - n * n.dot(&d)) * (sign / length);
+                let derivatives = modes
+                    .iter()
+                    .take(state.weights.len())
+                    .map(|[du, dv]| project(du.cross(&fv) + fu.cross(dv)))
+                    .collect();
+                (n, derivatives)
+            })
+            .collect()
+    }
+}
+
+/// How a photo's intensities are normalised at one sample: `N = (I − mean) · inverse`, and
+/// the derivative of `N` in the sample's normal per unit of `I` (`Window::Lit`; zero for the
+/// others).
+#[derive(Clone, Copy)]
+struct Normaliser {
+    mean: Real,
+    inverse: Real,
+    /// `∂N/∂n / I`.
+    d_normal: Vector3<Real>,
+}
+
+/// Every photo's [`Normaliser`]s at a state (`scales[i][s]`) and, for [`Window::Lit`],
+/// every sample's normal derivatives in the identity weights (`normal_modes[s][k]`, empty
+/// for the other windows).
+struct Normalisation {
+    scales: Vec<Vec<Normaliser>>,
+    normal_modes: Vec<Vec<Vector3<Real>>>,
 }
 
 /// A sample's identity point and its field lift ([`Samples::placed`]).
@@ -1012,6 +1119,64 @@ fn fit_shading(
     visibility: &[Vec<Real>],
     normals: &[Vector3<Real>],
 ) -> Vec<Vec<Real>> {
+    shading_of(fit_lights(raw, visibility, normals).as_deref(), raw, visibility, normals)
+        .into_iter()
+        .map(|photo| photo.into_iter().map(|(shade, _)| shade).collect())
+        .collect()
+}
+
+/// Each photo's shading at every sample under `lights` ([`fit_lights`]; all 1 without
+/// them) and its derivative in the sample's normal: `Sᵢₛ = max(lᵢ · (1, nₛ) / l̄ᵢ, 0.1)`
+/// with `l̄ᵢ` the photo's mean of `lᵢ · (1, nₛ)` over the samples it sees, and
+/// `∂Sᵢₛ/∂nₛ = (lᵢ,ₓ, lᵢ,ᵧ, lᵢ,𝓏) / l̄ᵢ` (zero where the floor holds it).
+fn shading_of(
+    lights: Option<&[nalgebra::Vector4<Real>]>,
+    raw: &[Vec<Option<Real>>],
+    visibility: &[Vec<Real>],
+    normals: &[Vector3<Real>],
+) -> Vec<Vec<(Real, Vector3<Real>)>> {
+    let n = normals.len();
+    let Some(lights) = lights else {
+        return vec![vec![(1.0, Vector3::zeros()); n]; raw.len()];
+    };
+    lights
+        .iter()
+        .enumerate()
+        .map(|(i, light)| {
+            let shade: Vec<Real> = normals
+                .iter()
+                .map(|v| light.dot(&nalgebra::Vector4::new(1.0, v.x, v.y, v.z)))
+                .collect();
+            let (mut total, mut sum) = (0.0, 0.0);
+            for s in 0..n {
+                if raw[i][s].is_some() {
+                    total += visibility[i][s];
+                    sum += visibility[i][s] * shade[s];
+                }
+            }
+            let mean = if total > 0.0 && sum > 0.0 {
+                sum / total
+            } else {
+                1.0
+            };
+            let slope = light.fixed_rows::<3>(1) / mean;
+            shade
+                .iter()
+                .map(|v| {
+                    let v = v / mean;
+                    if v > 0.1 { (v, slope) } else { (0.1, Vector3::zeros()) }
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// The lights of [`fit_shading`]; `None` when the photos say too little to fit them.
+fn fit_lights(
+    raw: &[Vec<Option<Real>>],
+    visibility: &[Vec<Real>],
+    normals: &[Vector3<Real>],
+) -> Option<Vec<nalgebra::Vector4<Real>>> {
     let (photos, n) = (raw.len(), normals.len());
     let basis = |s: usize| {
         let v = normals[s];
@@ -1074,18 +1239,13 @@ fn fit_shading(
         }
         let trace = d.trace();
         if !(trace > 0.0 && trace.is_finite()) {
-            return vec![vec![1.0; n]; photos];
+            return None;
         }
         // A faint ridge keeps `D` invertible where a photo sees too little.
         for k in 0..dim {
             d[(k, k)] += 1e-9 * trace / dim as Real;
         }
-        let Some(cholesky) = d.cholesky() else {
-            return vec![vec![1.0; n]; photos];
-        };
-        let Some(inverse) = cholesky.l().try_inverse() else {
-            return vec![vec![1.0; n]; photos];
-        };
+        let inverse = d.cholesky()?.l().try_inverse()?;
         let reduced = &inverse * &q * inverse.transpose();
         let reduced = (&reduced + reduced.transpose()) * 0.5;
         let eigen = reduced.symmetric_eigen();
@@ -1115,26 +1275,7 @@ fn fit_shading(
         }
         lights = found;
     }
-    lights
-        .iter()
-        .enumerate()
-        .map(|(i, light)| {
-            let shade: Vec<Real> = (0..n).map(|s| light.dot(&basis(s))).collect();
-            let (mut total, mut sum) = (0.0, 0.0);
-            for s in 0..n {
-                if raw[i][s].is_some() {
-                    total += visibility[i][s];
-                    sum += visibility[i][s] * shade[s];
-                }
-            }
-            let mean = if total > 0.0 && sum > 0.0 {
-                sum / total
-            } else {
-                1.0
-            };
-            shade.iter().map(|v| (v / mean).max(0.1)).collect()
-        })
-        .collect()
+    Some(lights)
 }
 
 /// The robust weights of [`fit_shading`] under `lights`: each intensity's visibility times a
@@ -1232,8 +1373,11 @@ struct Seen {
     photo: usize,
     weight: Real,
     value: Real,
-    /// `∂N/∂X` and `∂N/∂camera` (`∂N/∂w` is `∂N/∂X` through the sample's modes).
+    /// `∂N/∂X`, `∂N/∂n` (the sample's normal, [`Window::Lit`]; zero for the other windows)
+    /// and `∂N/∂camera` (`∂N/∂w` is `∂N/∂X` through the sample's modes and `∂N/∂n` through
+    /// its normal's derivatives).
     d_point: Vector3<Real>,
+    d_normal: Vector3<Real>,
     d_camera: [Real; CAMERA],
 }
 
@@ -1266,6 +1410,12 @@ fn agreement(seen: &[Seen]) -> Option<(Real, Real)> {
     let total: Real = seen.iter().map(|v| v.weight).sum();
     let mean = seen.iter().map(|v| v.weight * v.value).sum::<Real>() / total;
     Some((total, mean))
+}
+
+/// A view's derivative in the sample's `D` geometric unknowns: `∂N/∂X` (`D = 3`), then
+/// `∂N/∂n` (`D = 6`, [`Window::Lit`]).
+fn jet<const D: usize>(v: &Seen) -> SVector<Real, D> {
+    SVector::from_fn(|r, _| if r < 3 { v.d_point[r] } else { v.d_normal[r - 3] })
 }
 
 /// Cauchy weight of a residual of scale `c`.
@@ -1370,10 +1520,26 @@ impl Level<'_> {
     /// `N = (I − mean) · inverse`). A window on the surface, not in the image, covers the
     /// same part of the face in every photo however obliquely each sees it; a window in the
     /// image would not, and measurably biased the shape.
-    fn normalisers(&self, state: &State, visibility: &[Vec<Real>]) -> Vec<Vec<(Real, Real)>> {
+    fn normalisers(&self, state: &State, visibility: &[Vec<Real>]) -> Normalisation {
+        let plain = |scales: Vec<Vec<(Real, Real)>>| Normalisation {
+            scales: scales
+                .into_iter()
+                .map(|photo| {
+                    photo
+                        .into_iter()
+                        .map(|(mean, inverse)| Normaliser {
+                            mean,
+                            inverse,
+                            d_normal: Vector3::zeros(),
+                        })
+                        .collect()
+                })
+                .collect(),
+            normal_modes: Vec::new(),
+        };
         if self.options.window == Window::Image {
             // The images are normalised already.
-            return vec![vec![(0.0, 1.0); self.samples.len()]; state.cameras.len()];
+            return plain(vec![vec![(0.0, 1.0); self.samples.len()]; state.cameras.len()]);
         }
         let placed = self.samples.placed(state);
         let raw: Vec<Vec<Option<Real>>> = state
@@ -1394,11 +1560,15 @@ impl Level<'_> {
                     .collect()
             })
             .collect();
+        if self.options.window == Window::Lit {
+            return self.lit(state, &raw, visibility);
+        }
         let shading = match self.options.window {
             Window::Shaded => fit_shading(&raw, visibility, &self.samples.normals),
             _ => vec![vec![1.0; self.samples.len()]; raw.len()],
         };
-        raw.par_iter()
+        let scales = raw
+            .par_iter()
             .zip(&shading)
             .map(|(raw, shading)| {
                 // The normalisation of `I / S` as one of `I`: `(I / S − m) · d = (I − m S) · d / S`.
@@ -1426,7 +1596,55 @@ impl Level<'_> {
                     })
                     .collect()
             })
-            .collect()
+            .collect();
+        plain(scales)
+    }
+
+    /// [`Window::Lit`]'s normalisation of the photos' (linear) intensities `raw` at `state`:
+    /// each photo's lighting fitted over the shape's own normals and divided out, then the
+    /// photo's gain and bias (its visibility-weighted mean `mᵢ` and deviation `dᵢ` of
+    /// `I / S` over the samples it sees): `N = (I / S − mᵢ) / dᵢ = (I − mᵢ S) / (S dᵢ)`, and
+    /// `∂N/∂n = −I / (S² dᵢ) · ∂S/∂n` ([`shading_of`]).
+    fn lit(&self, state: &State, raw: &[Vec<Option<Real>>], visibility: &[Vec<Real>]) -> Normalisation {
+        let (normals, normal_modes): (Vec<Vector3<Real>>, Vec<Vec<Vector3<Real>>>) =
+            self.samples.shape_normals(state).into_iter().unzip();
+        let lights = fit_lights(raw, visibility, &normals);
+        let shading = shading_of(lights.as_deref(), raw, visibility, &normals);
+        let scales = raw
+            .iter()
+            .zip(&shading)
+            .zip(visibility)
+            .map(|((raw, shading), seen)| {
+                let (mut total, mut sum, mut squares) = (0.0, 0.0, 0.0);
+                for ((value, (shade, _)), c) in raw.iter().zip(shading).zip(seen) {
+                    if let Some(value) = value {
+                        let v = value / shade;
+                        total += c;
+                        sum += c * v;
+                        squares += c * v * v;
+                    }
+                }
+                let (mean, deviation) = if total > 0.0 {
+                    let mean = sum / total;
+                    (mean, (squares / total - mean * mean).max(0.0).sqrt())
+                } else {
+                    (0.0, 1.0)
+                };
+                let inverse = 1.0 / deviation.max(DEVIATION_FLOOR);
+                shading
+                    .iter()
+                    .map(|&(shade, slope)| Normaliser {
+                        mean: mean * shade,
+                        inverse: inverse / shade,
+                        d_normal: -slope * (inverse / (shade * shade)),
+                    })
+                    .collect()
+            })
+            .collect();
+        Normalisation {
+            scales,
+            normal_modes,
+        }
     }
 
     /// Sample `s` seen by the photos with weights `visibility`, linearised (with derivatives
@@ -1436,7 +1654,7 @@ impl Level<'_> {
         state: &State,
         placed: &[Placed],
         visibility: &[Vec<Real>],
-        normalisers: &[Vec<(Real, Real)>],
+        normalisation: &Normalisation,
         s: usize,
         derivatives: bool,
     ) -> Vec<Seen> {
@@ -1457,10 +1675,15 @@ impl Level<'_> {
             };
             // The sample's normalisation is held while the geometry moves (recomputed at every
             // state the cost is taken at).
-            let (mean, inverse) = normalisers[i][s];
+            let Normaliser {
+                mean,
+                inverse,
+                d_normal,
+            } = normalisation.scales[i][s];
             let (value, grad) = ((raw - mean) * inverse, raw_grad * inverse);
             let mut d_camera = [0.0; CAMERA];
             let mut d_point = Vector3::zeros();
+            let d_normal = d_normal * raw;
             if derivatives {
                 // ∂N/∂q = ∇N · ∂p/∂q; ∂q/∂x = R.
                 let dn_dq = projected.dq.transpose() * grad;
@@ -1474,6 +1697,7 @@ impl Level<'_> {
                 weight: c,
                 value,
                 d_point,
+                d_normal,
                 d_camera,
             });
         }
@@ -1501,12 +1725,12 @@ impl Level<'_> {
         visibility: &[Vec<Real>],
         f: impl Fn(&[Seen], Real, Real) -> T + Sync,
     ) -> Vec<Option<T>> {
-        let normalisers = self.normalisers(state, visibility);
+        let normalisation = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
-                let seen = self.seen(state, &placed, visibility, &normalisers, s, false);
+                let seen = self.seen(state, &placed, visibility, &normalisation, s, false);
                 let (total, mean) = agreement(&seen)?;
                 Some(f(&seen, total, mean))
             })
@@ -1644,8 +1868,8 @@ impl Level<'_> {
     /// `field` the first of the field's columns, `basis` the sample's field basis values
     /// (empty without a field).
     #[allow(clippy::too_many_arguments)]
-    fn add_sample(
-        modes: &[Vector3<Real>],
+    fn add_sample<const D: usize>(
+        modes: &[SVector<Real, D>],
         field: usize,
         basis: &[(usize, Real)],
         seen: &[Seen],
@@ -1655,9 +1879,9 @@ impl Level<'_> {
     ) {
         let n = h.nrows();
         let k = modes.len();
-        let mean_point: Vector3<Real> = seen.iter().map(|v| v.d_point * (v.weight / total)).sum();
+        let mean_point: SVector<Real, D> = seen.iter().map(|v| jet::<D>(v) * (v.weight / total)).sum();
         // Per view: its share, its weight ρ, its residual and its point Jacobian about the mean.
-        let views: Vec<(Real, Real, Real, Vector3<Real>)> = seen
+        let views: Vec<(Real, Real, Real, SVector<Real, D>)> = seen
             .iter()
             .map(|v| {
                 let r = v.value - mean;
@@ -1665,14 +1889,14 @@ impl Level<'_> {
                     v.weight / total,
                     scale * v.weight * cauchy(r, c),
                     r,
-                    v.d_point - mean_point,
+                    jet::<D>(v) - mean_point,
                 )
             })
             .collect();
         let (mut a, mut b, mut u) = (
-            nalgebra::Matrix3::<Real>::zeros(),
-            Vector3::zeros(),
-            Vector3::zeros(),
+            nalgebra::SMatrix::<Real, D, D>::zeros(),
+            SVector::<Real, D>::zeros(),
+            SVector::<Real, D>::zeros(),
         );
         let (mut weight_sum, mut residual_sum) = (0.0, 0.0);
         for &(_, rho, r, q) in &views {
@@ -1684,7 +1908,7 @@ impl Level<'_> {
         }
         let hs = h.as_mut_slice();
         // Identity × identity (column by column, the upper triangle) and its gradient.
-        let t: Vec<Vector3<Real>> = modes.iter().map(|m| a * m).collect();
+        let t: Vec<SVector<Real, D>> = modes.iter().map(|m| a * m).collect();
         for (j, tj) in t.iter().enumerate() {
             let column = &mut hs[j * n..j * n + j + 1];
             for (entry, mi) in column.iter_mut().zip(modes) {
@@ -1705,7 +1929,7 @@ impl Level<'_> {
                 let (lo, hi) = ((field + other).min(column), (field + other).max(column));
                 hs[hi * n + lo] += a[(2, 2)] * value * other_value;
             }
-            g[column] += b.z * value;
+            g[column] += b[2] * value;
         }
         for (x, (view, &(share_b, rho_b, r_b, q_b))) in seen.iter().zip(&views).enumerate() {
             let base = k + CAMERA * view.photo;
@@ -1734,7 +1958,7 @@ impl Level<'_> {
                 }
             }
             // This camera × the field.
-            let cross = rho_b * q_b.z - share_b * u.z;
+            let cross = rho_b * q_b[2] - share_b * u[2];
             for &(cp, value) in basis {
                 let column = &mut hs[(field + cp) * n..(field + cp + 1) * n];
                 for (t, d) in camera.iter().enumerate() {
@@ -1757,7 +1981,7 @@ impl Level<'_> {
         state: &State,
         visibility: &[Vec<Real>],
     ) -> (DMatrix<Real>, DVector<Real>, Real) {
-        let normalisers = self.normalisers(state, visibility);
+        let normalisation = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
         let k = state.weights.len();
         let n = state.unknowns();
@@ -1776,7 +2000,7 @@ impl Level<'_> {
                 let mut g = DVector::<Real>::zeros(n);
                 let mut costs = Vec::with_capacity(samples.len());
                 for &s in samples {
-                    let seen = self.seen(state, &placed, visibility, &normalisers, s, true);
+                    let seen = self.seen(state, &placed, visibility, &normalisation, s, true);
                     if let Some((total, mean)) = agreement(&seen) {
                         costs.push(sample_cost(&seen, mean, c));
                         let basis: &[(usize, Real)] = if state.field.is_empty() {
@@ -1784,15 +2008,27 @@ impl Level<'_> {
                         } else {
                             &self.samples.basis[s]
                         };
-                        Self::add_sample(
-                            &self.samples.modes[s],
-                            field,
-                            basis,
-                            &seen,
-                            (total, mean),
-                            (scale, c),
-                            (&mut h, &mut g),
-                        );
+                        let equations = (&mut h, &mut g);
+                        match normalisation.normal_modes.get(s) {
+                            // The modes move the sample's normal too ([`Window::Lit`]).
+                            Some(normal_modes) => {
+                                let modes: Vec<SVector<Real, 6>> = self.samples.modes[s]
+                                    .iter()
+                                    .zip(normal_modes)
+                                    .map(|(m, t)| SVector::<Real, 6>::new(m.x, m.y, m.z, t.x, t.y, t.z))
+                                    .collect();
+                                Self::add_sample(&modes, field, basis, &seen, (total, mean), (scale, c), equations);
+                            }
+                            None => Self::add_sample(
+                                &self.samples.modes[s],
+                                field,
+                                basis,
+                                &seen,
+                                (total, mean),
+                                (scale, c),
+                                equations,
+                            ),
+                        }
                     }
                 }
                 (h, g, costs)
@@ -2321,7 +2557,7 @@ impl FaceSpace {
                         let factor = (eye_pixels / eye).min(1.0);
                         let window =
                             (options.window == Window::Image).then_some(options.window_eyes * eye * factor);
-                        LevelImage::new(v.image, *b, factor, window)
+                        LevelImage::new(v.image, *b, factor, window, options.window == Window::Lit)
                     })
                     .collect()
             },
@@ -2332,6 +2568,7 @@ impl FaceSpace {
                     &problem.expression_grids,
                     spacing,
                     options.window_eyes,
+                    options.window == Window::Lit,
                 )
             },
         );
@@ -2607,16 +2844,22 @@ mod tests {
     /// One sample's normal equations by their closed-form blocks against the definition:
     /// every view's full residual row (the identity through the modes, every seeing view's
     /// camera, the field) and the sum of their outer products, with the views' photos not
-    /// consecutive and the field's control points out of order.
+    /// consecutive and the field's control points out of order; for the point alone and for
+    /// the point and the normal ([`Window::Lit`]).
     #[test]
     fn sample_blocks_equal_the_rows_gram_matrix() {
+        sample_blocks::<3>();
+        sample_blocks::<6>();
+    }
+
+    fn sample_blocks<const D: usize>() {
         let value = |i: usize| ((i * 7919 + 13) % 1009) as Real / 1009.0 - 0.5;
         let k = 5;
         let photos = 4;
         let field = k + CAMERA * photos;
         let n = field + 6;
-        let modes: Vec<Vector3<Real>> = (0..k)
-            .map(|m| Vector3::new(value(3 * m), value(3 * m + 1), value(3 * m + 2)))
+        let modes: Vec<SVector<Real, D>> = (0..k)
+            .map(|m| SVector::from_fn(|r, _| value(D * m + r)))
             .collect();
         let basis = [(1, 0.3), (4, 0.5), (2, 0.2)];
         let seen: Vec<Seen> = [0, 2, 3]
@@ -2627,6 +2870,7 @@ mod tests {
                 weight: 0.4 + 0.2 * x as Real,
                 value: value(100 + x),
                 d_point: Vector3::new(value(200 + x), value(300 + x), value(400 + x)),
+                d_normal: Vector3::new(value(600 + x), value(700 + x), value(800 + x)),
                 d_camera: std::array::from_fn(|t| value(500 + 10 * x + t)),
             })
             .collect();
@@ -2646,11 +2890,23 @@ mod tests {
 
         let mut expected_h = DMatrix::<Real>::zeros(n, n);
         let mut expected_g = DVector::<Real>::zeros(n);
-        let mean_point: Vector3<Real> = seen.iter().map(|v| v.d_point * (v.weight / total)).sum();
+        // The view's derivative in the sample's point (and normal), written out.
+        let jet_of = |v: &Seen| -> SVector<Real, D> {
+            let all = [
+                v.d_point.x,
+                v.d_point.y,
+                v.d_point.z,
+                v.d_normal.x,
+                v.d_normal.y,
+                v.d_normal.z,
+            ];
+            SVector::from_fn(|r, _| all[r])
+        };
+        let mean_point: SVector<Real, D> = seen.iter().map(|v| jet_of(v) * (v.weight / total)).sum();
         for (at, v) in seen.iter().enumerate() {
             let r = v.value - mean;
             let root = (scale * v.weight * cauchy(r, c)).sqrt();
-            let q = v.d_point - mean_point;
+            let q = jet_of(v) - mean_point;
             let mut row = DVector::<Real>::zeros(n);
             for (m, mode) in modes.iter().enumerate() {
                 row[m] = root * q.dot(mode);
@@ -2662,7 +2918,7 @@ mod tests {
                 }
             }
             for &(cp, beta) in &basis {
-                row[field + cp] = root * q.z * beta;
+                row[field + cp] = root * q[2] * beta;
             }
             expected_h += &row * row.transpose();
             expected_g += &row * (root * r);
@@ -2686,6 +2942,51 @@ mod tests {
     /// The separable blur against the Gaussian's definition: every output pixel the
     /// normalised two-dimensional kernel's weighted sum of the input, borders clamped
     /// (odd sizes, a kernel wider than the image, and a one-pixel image included).
+    /// The shape's own normals and their derivatives in the identity weights
+    /// ([`Samples::shape_normals`]) against central differences of the normals themselves,
+    /// away from the mean face (every mode's weight non-zero); the normals are the base
+    /// surface's at zero weights.
+    #[test]
+    fn shape_normals_follow_the_weights() {
+        let reference = ReferenceFace::embedded().as_seen_in_photos().into_owned();
+        let space = reference.face_space().expect("the embedded reference has a face space");
+        let samples = Samples::new(&space, &reference, &[], 12.0, NORMALISATION_EYES, true).unwrap();
+        let k = space.mode_count();
+        let state = |weights: Vec<Real>| State {
+            weights,
+            cameras: Vec::new(),
+            field: Vec::new(),
+        };
+        let at_zero = samples.shape_normals(&state(vec![0.0; k]));
+        for ((n, _), mean) in at_zero.iter().zip(&samples.normals) {
+            assert!((n - mean).norm() < 1e-9, "{n} against {mean}");
+        }
+        let weights: Vec<Real> = space
+            .sigma()
+            .iter()
+            .enumerate()
+            .map(|(m, s)| s * [0.8, -1.1, 0.5][m % 3])
+            .collect();
+        let normals = samples.shape_normals(&state(weights.clone()));
+        let h = 1e-4;
+        let mut worst: Real = 0.0;
+        for m in [0, 1, 7, k - 1] {
+            let step = |d: Real| {
+                let mut w = weights.clone();
+                w[m] += d * space.sigma()[m];
+                samples.shape_normals(&state(w))
+            };
+            let (up, down) = (step(h), step(-h));
+            for (s, (n, derivatives)) in normals.iter().enumerate() {
+                assert!((n.norm() - 1.0).abs() < 1e-12);
+                let numeric = (up[s].0 - down[s].0) / (2.0 * h * space.sigma()[m]);
+                let scale = derivatives[m].norm().max(1e-3);
+                worst = worst.max((derivatives[m] - numeric).norm() / scale);
+            }
+        }
+        assert!(worst < 1e-5, "relative error of the derivatives {worst:e}");
+    }
+
     /// The folds deal the photos out in order of yaw: every fold holds out photos from both
     /// sides, each photo is held out exactly once, and three photos are left out one at a
     /// time; two have no folds.

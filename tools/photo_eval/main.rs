@@ -12,7 +12,7 @@
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
 //! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]
-//! [--flat-light]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--flat-light] [--windows KEYS]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -64,6 +64,8 @@ struct Args {
     from_truth: bool,
     /// `--flat-light`: the pools lit by ambient light alone.
     flat_light: bool,
+    /// `--windows`: the windows `--from-truth` compares (their keys; empty: all).
+    windows: Vec<String>,
 }
 
 fn parse_args() -> Result<Args> {
@@ -86,6 +88,7 @@ fn parse_args() -> Result<Args> {
         signed_maps: None,
         from_truth: false,
         flat_light: false,
+        windows: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -112,6 +115,7 @@ fn parse_args() -> Result<Args> {
             "--signed-maps" => args.signed_maps = Some(value()?.into()),
             "--from-truth" => args.from_truth = true,
             "--flat-light" => args.flat_light = true,
+            "--windows" => args.windows = value()?.split(',').map(|m| m.trim().to_owned()).collect(),
             other => bail!("unknown argument {other}"),
         }
     }
@@ -323,21 +327,59 @@ fn from_truth(
         refine: None,
         ..PipelineOptions::default()
     };
-    let windows = [
+    // (key for `--windows`, title, window, its size in eye distances, β)
+    let beta = RefineOptions::default().beta;
+    let all = [
         (
-            "in the image, 0.12 eye distances (the default)",
+            "image",
+            "in the image, 0.12 eye distances (the default)".to_owned(),
             Window::Image,
             0.12,
+            beta,
         ),
-        ("in the image, 0.25 eye distances", Window::Image, 0.25),
-        ("in the image, 0.5 eye distances", Window::Image, 0.5),
-        ("on the surface, 0.12 eye distances", Window::Surface, 0.12),
+        ("image-0.25", "in the image, 0.25 eye distances".to_owned(), Window::Image, 0.25, beta),
+        ("image-0.5", "in the image, 0.5 eye distances".to_owned(), Window::Image, 0.5, beta),
+        ("surface", "on the surface, 0.12 eye distances".to_owned(), Window::Surface, 0.12, beta),
         (
-            "on the surface, the shading divided out, 0.12 eye distances",
+            "shaded",
+            "on the surface, the shading divided out, 0.12 eye distances".to_owned(),
             Window::Shaded,
             0.12,
+            beta,
+        ),
+        (
+            "lit",
+            format!("none: the photos compared with the face lit (`Window::Lit`), β = {beta}"),
+            Window::Lit,
+            0.12,
+            beta,
+        ),
+        (
+            "lit-0.1",
+            "none: the photos compared with the face lit, β = 0.1".to_owned(),
+            Window::Lit,
+            0.12,
+            0.1,
+        ),
+        (
+            "lit-0.3",
+            "none: the photos compared with the face lit, β = 0.3".to_owned(),
+            Window::Lit,
+            0.12,
+            0.3,
         ),
     ];
+    if let Some(unknown) = args.windows.iter().find(|w| !all.iter().any(|a| a.0 == w.as_str())) {
+        bail!(
+            "unknown window {unknown} (one of {})",
+            all.iter().map(|a| a.0).collect::<Vec<_>>().join(", ")
+        );
+    }
+    let windows: Vec<(&str, Window, Real, Real)> = all
+        .iter()
+        .filter(|a| args.windows.is_empty() || args.windows.iter().any(|w| w == a.0))
+        .map(|(_, title, window, eyes, beta)| (title.as_str(), *window, *eyes, *beta))
+        .collect();
     let units = landmark_only.units;
     let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
     let mut page = format!(
@@ -419,11 +461,12 @@ fn from_truth(
             ..fit.clone()
         };
         let (fit_score, truth_score) = (scored(&fit.weights)?, scored(&truth)?);
-        for ((_, window, window_eyes), rows) in windows.iter().zip(&mut rows) {
+        for ((_, window, window_eyes, beta), rows) in windows.iter().zip(&mut rows) {
             let refine = RefineOptions {
                 min_gain: Real::NEG_INFINITY,
                 window: *window,
                 window_eyes: *window_eyes,
+                beta: *beta,
                 ..RefineOptions::default()
             };
             let loose = RefineOptions {
@@ -460,7 +503,7 @@ fn from_truth(
             rows.push_str(&row);
         }
     }
-    for ((window_name, _, _), rows) in windows.iter().zip(&rows) {
+    for ((window_name, _, _, _), rows) in windows.iter().zip(&rows) {
         page.push_str(&format!("\n## The window {window_name}\n\n{header}{rows}"));
     }
     std::fs::write(args.out.join("from-truth.md"), page)?;
@@ -1450,6 +1493,25 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             with(&|o| {
                 o.refine = Some(RefineOptions {
                     window: splineface::face::Window::Shaded,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine lit",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Lit,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine lit ungated",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Lit,
+                    min_gain: Real::NEG_INFINITY,
                     ..RefineOptions::default()
                 })
             }),
