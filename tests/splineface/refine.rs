@@ -229,16 +229,16 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
     (weights, fit, views)
 }
 
-/// Both ways of making the photos comparable (the window in the image, and the shading
-/// divided out before a window on the surface) pull the face toward the member the photos
-/// show, each photo lit from another side.
+/// Every way of making the photos comparable (the window in the image, the shading divided
+/// out before a window on the surface, and the photos compared with the face lit) pulls the
+/// face toward the member the photos show, each photo lit from another side.
 #[test]
 fn the_photos_pull_the_face_toward_the_member_they_show() {
     let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
     let (weights, fit, views) = landmark_fit(&scene);
     let before = shape_distance(&scene, &fit.weights, &scene.truth);
     let mean = shape_distance(&scene, &vec![0.0; scene.truth.len()], &scene.truth);
-    for window in [Window::Image, Window::Shaded] {
+    for window in [Window::Image, Window::Shaded, Window::Lit] {
         let options = RefineOptions {
             window,
             ..RefineOptions::default()

@@ -337,9 +337,27 @@ fn from_truth(
             0.12,
             beta,
         ),
-        ("image-0.25", "in the image, 0.25 eye distances".to_owned(), Window::Image, 0.25, beta),
-        ("image-0.5", "in the image, 0.5 eye distances".to_owned(), Window::Image, 0.5, beta),
-        ("surface", "on the surface, 0.12 eye distances".to_owned(), Window::Surface, 0.12, beta),
+        (
+            "image-0.25",
+            "in the image, 0.25 eye distances".to_owned(),
+            Window::Image,
+            0.25,
+            beta,
+        ),
+        (
+            "image-0.5",
+            "in the image, 0.5 eye distances".to_owned(),
+            Window::Image,
+            0.5,
+            beta,
+        ),
+        (
+            "surface",
+            "on the surface, 0.12 eye distances".to_owned(),
+            Window::Surface,
+            0.12,
+            beta,
+        ),
         (
             "shaded",
             "on the surface, the shading divided out, 0.12 eye distances".to_owned(),
@@ -369,7 +387,11 @@ fn from_truth(
             0.3,
         ),
     ];
-    if let Some(unknown) = args.windows.iter().find(|w| !all.iter().any(|a| a.0 == w.as_str())) {
+    if let Some(unknown) = args
+        .windows
+        .iter()
+        .find(|w| !all.iter().any(|a| a.0 == w.as_str()))
+    {
         bail!(
             "unknown window {unknown} (one of {})",
             all.iter().map(|a| a.0).collect::<Vec<_>>().join(", ")
@@ -1512,6 +1534,28 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 o.refine = Some(RefineOptions {
                     window: splineface::face::Window::Lit,
                     min_gain: Real::NEG_INFINITY,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine lit gate 0",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Lit,
+                    min_gain: 0.0,
+                    full_gain: 0.05,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
+            "refine lit ungated beta 0.1",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    window: splineface::face::Window::Lit,
+                    min_gain: Real::NEG_INFINITY,
+                    beta: 0.1,
                     ..RefineOptions::default()
                 })
             }),
