@@ -710,8 +710,10 @@ impl Reconstruction {
 }
 
 /// The consistency map as a picture: the photos' disagreement on the landmark fit's face
-/// (left) and on the refined one (right), each sample a 4 × 4 block, on one scale (0 to 1
-/// normalised intensity; dark where fewer than two photos see the face).
+/// (left) and on the refined one (right), each sample a 4 × 4 block, on one scale (0 to 1 in
+/// units of the normalised intensity: a photo's deviation over the face with the default lit
+/// measure, its local deviation with a window, [`crate::face::Window`]; dark where fewer than
+/// two photos see the face).
 fn consistency_png(map: &crate::face::ConsistencyMap) -> Result<Vec<u8>, crate::io::EncodeError> {
     const BLOCK: usize = 4;
     let (w, h) = (map.width, map.height);
