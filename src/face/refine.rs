@@ -897,8 +897,11 @@ struct Samples {
     /// Per sample, the base surface's partial derivatives `(F_u, F_v)` and, per mode, its
     /// displacement's `(D_u, D_v)`: what the shape's own normals are made of ([`Window::Lit`];
     /// empty for the other windows).
-    partials: Vec<([Vector3<Real>; 2], Vec<[Vector3<Real>; 2]>)>,
+    partials: Vec<(Tangents, Vec<Tangents>)>,
 }
+
+/// A surface's (or a mode's) partial derivatives `(∂/∂u, ∂/∂v)` at a sample.
+type Tangents = [Vector3<Real>; 2];
 
 impl Samples {
     /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
@@ -1059,7 +1062,7 @@ impl Samples {
                 }
                 let m = fu.cross(&fv);
                 let length = m.norm();
-                if !(length > 1e-12) {
+                if length.is_nan() || length <= 1e-12 {
                     return (*mean_normal, vec![Vector3::zeros(); modes.len()]);
                 }
                 let sign = if m.dot(mean_normal) < 0.0 { -1.0 } else { 1.0 };
