@@ -1462,6 +1462,11 @@ fn agreement(seen: &[Seen]) -> Option<(Real, Real)> {
     Some((total, mean))
 }
 
+/// What [`Level::add_sample`] takes besides the modes: the field's first column, the sample's
+/// field basis values, the views that see it, their summed weight and weighted mean
+/// ([`agreement`]), and the residuals' scale `β / σ²` with the Cauchy loss's parameter.
+type SampleTerms<'a> = (usize, &'a [(usize, Real)], &'a [Seen], (Real, Real), (Real, Real));
+
 /// A view's derivative in the sample's `D` geometric unknowns: `∂N/∂X` (`D = 3`), then
 /// `∂N/∂n` (`D = 6`, [`Window::Lit`]).
 fn jet<const D: usize>(v: &Seen) -> SVector<Real, D> {
@@ -1912,16 +1917,13 @@ impl Level<'_> {
     /// reads, cost about ten times as much with eight photos and sixty modes.
     ///
     /// `modes` are the sample's `k` mode displacements (the identity's columns come first),
-    /// `field` the first of the field's columns, `basis` the sample's field basis values
-    /// (empty without a field).
-    #[allow(clippy::too_many_arguments)]
+    /// each with its normal's derivative below it for [`Window::Lit`] (`D = 6`; the views'
+    /// `qₐ` then stack `∂N/∂X` and `∂N/∂n`, [`jet`], and `A` is `6 × 6`); `field` the first
+    /// of the field's columns, `basis` the sample's field basis values (empty without a
+    /// field), the field moving the point alone.
     fn add_sample<const D: usize>(
         modes: &[SVector<Real, D>],
-        field: usize,
-        basis: &[(usize, Real)],
-        seen: &[Seen],
-        (total, mean): (Real, Real),
-        (scale, c): (Real, Real),
+        (field, basis, seen, (total, mean), (scale, c)): SampleTerms<'_>,
         (h, g): (&mut DMatrix<Real>, &mut DVector<Real>),
     ) {
         let n = h.nrows();
@@ -2055,7 +2057,7 @@ impl Level<'_> {
                         } else {
                             &self.samples.basis[s]
                         };
-                        let equations = (&mut h, &mut g);
+                        let terms = (field, basis, &seen[..], (total, mean), (scale, c));
                         match normalisation.normal_modes.get(s) {
                             // The modes move the sample's normal too ([`Window::Lit`]).
                             Some(normal_modes) => {
@@ -2064,25 +2066,9 @@ impl Level<'_> {
                                     .zip(normal_modes)
                                     .map(|(m, t)| SVector::<Real, 6>::new(m.x, m.y, m.z, t.x, t.y, t.z))
                                     .collect();
-                                Self::add_sample(
-                                    &modes,
-                                    field,
-                                    basis,
-                                    &seen,
-                                    (total, mean),
-                                    (scale, c),
-                                    equations,
-                                );
+                                Self::add_sample(&modes, terms, (&mut h, &mut g));
                             }
-                            None => Self::add_sample(
-                                &self.samples.modes[s],
-                                field,
-                                basis,
-                                &seen,
-                                (total, mean),
-                                (scale, c),
-                                equations,
-                            ),
+                            None => Self::add_sample(&self.samples.modes[s], terms, (&mut h, &mut g)),
                         }
                     }
                 }
@@ -2935,11 +2921,7 @@ mod tests {
         let mut g = DVector::zeros(n);
         Level::add_sample(
             &modes,
-            field,
-            &basis,
-            &seen,
-            (total, mean),
-            (scale, c),
+            (field, &basis, &seen, (total, mean), (scale, c)),
             (&mut h, &mut g),
         );
 
