@@ -559,6 +559,72 @@ impl BSplineSurface {
         })
     }
 
+    /// The sparse matrix of the basis functions' mixed partial derivatives
+    /// `∂ᵏ⁺ˡ/∂uᵏ∂vˡ` at `params`, laid out as [`BSplineSurface::basis_matrix`]'s, so that
+    /// `R_kl · B` is the surface's derivative of that order at every parameter pair (with `B`
+    /// the control grid) and, applied to any other grid on the same knots (a displacement
+    /// field, a mode of a [`super::SurfaceSpace`]), that grid's: one evaluation of the basis
+    /// serves every grid. `(0, 0)` is the basis matrix itself; an order above a direction's
+    /// degree gives zeros.
+    ///
+    /// ```
+    /// use nalgebra::Point3;
+    /// use splineface::bspline::{BSplineSurface, KnotVector};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 2, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 5) as f64)).collect();
+    /// let s = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// let r = s.derivative_basis_matrix(&[[0.3, 0.7]], (1, 0))?;
+    /// let f_u = r.mul(s.control_points())[0].coords;
+    /// assert!((f_u - s.derivatives(0.3, 0.7, 1)?.get(1, 0)).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::eval`].
+    pub fn derivative_basis_matrix(
+        &self,
+        params: &[[Real; 2]],
+        (k, l): (usize, usize),
+    ) -> Result<BasisMatrix, BSplineError> {
+        let (p, q) = (self.degree_u(), self.degree_v());
+        let nnz = (p + 1) * (q + 1);
+        let mut columns = Vec::with_capacity(params.len() * nnz);
+        let mut values = Vec::with_capacity(params.len() * nnz);
+        let mut nu = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 1)];
+        let mut nv = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 1)];
+        for &[u, v] in params {
+            let (su, sv) = self.locate(u, v)?;
+            let (du, dv) = (k.min(p), l.min(q));
+            basis_derivatives(&self.knots_u, su, u, du, &mut nu);
+            basis_derivatives(&self.knots_v, sv, v, dv, &mut nv);
+            let zero = [0.0; MAX_DEGREE + 1];
+            let row_u = if k <= p {
+                &nu[k * (p + 1)..(k + 1) * (p + 1)]
+            } else {
+                &zero[..=p]
+            };
+            let row_v = if l <= q {
+                &nv[l * (q + 1)..(l + 1) * (q + 1)]
+            } else {
+                &zero[..=q]
+            };
+            for (a, &wu) in row_u.iter().enumerate() {
+                for (b, &wv) in row_v.iter().enumerate() {
+                    columns.push((su - p + a) * self.cols + sv - q + b);
+                    values.push(wu * wv);
+                }
+            }
+        }
+        Ok(BasisMatrix {
+            nrows: params.len(),
+            ncols: self.rows * self.cols,
+            nnz_per_row: nnz,
+            columns,
+            values,
+        })
+    }
+
     /// The surface mapped by an affine transform: by the affine invariance of B-splines,
     /// `transformed(A).eval(u, v) = A(eval(u, v))`, and it is computed by mapping the control
     /// grid.

@@ -973,22 +973,29 @@ impl Samples {
             .map(|n: Vector3<Real>| if n.z < 0.0 { -n } else { n })
             .collect();
         let partials = if partials {
-            let mode_surfaces: Vec<_> = (0..surfaces.mode_count())
-                .map(|k| surfaces.mode_surface(k))
-                .collect();
-            let tangents = |surface: &crate::bspline::BSplineSurface, [u, v]: [Real; 2]| {
-                surface.derivatives(u, v, 1).map(|d| [d.get(1, 0), d.get(0, 1)])
-            };
-            params
-                .par_iter()
-                .map(|&q| {
-                    let modes = mode_surfaces
-                        .iter()
-                        .map(|m| tangents(m, q))
-                        .collect::<Result<Vec<_>, _>>()?;
-                    Ok((tangents(base_surface, q)?, modes))
+            // One evaluation of the basis's derivatives per sample serves the base and every
+            // mode.
+            let (du, dv) = (
+                base_surface.derivative_basis_matrix(&params, (1, 0))?,
+                base_surface.derivative_basis_matrix(&params, (0, 1))?,
+            );
+            let base_points = base_surface.control_points();
+            let modes = surfaces.modes();
+            (0..params.len())
+                .into_par_iter()
+                .map(|s| {
+                    let ((cu, wu), (cv, wv)) = (du.row(s), dv.row(s));
+                    let apply = |grid: &dyn Fn(usize) -> Vector3<Real>| -> Tangents {
+                        [
+                            cu.iter().zip(wu).map(|(&c, &w)| grid(c) * w).sum(),
+                            cv.iter().zip(wv).map(|(&c, &w)| grid(c) * w).sum(),
+                        ]
+                    };
+                    let base = apply(&|c| base_points[c].coords);
+                    let mode_tangents = modes.iter().map(|m| apply(&|c| m[c])).collect();
+                    (base, mode_tangents)
                 })
-                .collect::<Result<Vec<_>, crate::bspline::BSplineError>>()?
+                .collect()
         } else {
             Vec::new()
         };
@@ -1256,36 +1263,51 @@ fn fit_lights(
         // shadings, so the lights maximise `Lᵀ V L / Lᵀ D L`: a generalised eigenproblem. (The
         // plain smallest eigenvector of `D − V` prefers lights that shade the whole face dark,
         // `1 − n_z` being nearly zero on a face seen from the front.)
-        let mut d = DMatrix::<Real>::zeros(dim, dim);
-        let mut q = DMatrix::<Real>::zeros(dim, dim);
-        let mut v = DVector::<Real>::zeros(dim);
-        for s in 0..n {
-            let seen: Vec<(usize, Real, Real)> = (0..photos)
-                .filter_map(|i| {
-                    let w = weights[i][s];
-                    (w > 0.0).then(|| raw[i][s].map(|value| (i, w, value)))?
-                })
-                .collect();
-            if seen.len() < 2 {
-                continue;
-            }
-            let h = basis(s);
-            let hh = h * h.transpose();
-            let squares: Real = seen.iter().map(|&(_, w, value)| w * value * value).sum();
-            v.fill(0.0);
-            for &(i, w, value) in &seen {
-                let mut block = d.fixed_view_mut::<4, 4>(4 * i, 4 * i);
-                block += hh * (squares * w);
-                v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
-            }
-            for &(i, _, _) in &seen {
-                let vi = v.fixed_rows::<4>(4 * i).into_owned();
-                for &(j, _, _) in &seen {
-                    let vj = v.fixed_rows::<4>(4 * j).into_owned();
-                    let mut block = q.fixed_view_mut::<4, 4>(4 * i, 4 * j);
-                    block += vi * vj.transpose();
+        // In fixed chunks of samples, each summed in order and the chunks in order: the same
+        // lights whatever the threads.
+        let chunk = n.div_ceil(8).max(1);
+        let parts: Vec<(DMatrix<Real>, DMatrix<Real>)> = (0..n)
+            .collect::<Vec<usize>>()
+            .par_chunks(chunk)
+            .map(|samples| {
+                let mut d = DMatrix::<Real>::zeros(dim, dim);
+                let mut q = DMatrix::<Real>::zeros(dim, dim);
+                let mut v = DVector::<Real>::zeros(dim);
+                for &s in samples {
+                    let seen: Vec<(usize, Real, Real)> = (0..photos)
+                        .filter_map(|i| {
+                            let w = weights[i][s];
+                            (w > 0.0).then(|| raw[i][s].map(|value| (i, w, value)))?
+                        })
+                        .collect();
+                    if seen.len() < 2 {
+                        continue;
+                    }
+                    let h = basis(s);
+                    let hh = h * h.transpose();
+                    let squares: Real = seen.iter().map(|&(_, w, value)| w * value * value).sum();
+                    v.fill(0.0);
+                    for &(i, w, value) in &seen {
+                        let mut block = d.fixed_view_mut::<4, 4>(4 * i, 4 * i);
+                        block += hh * (squares * w);
+                        v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
+                    }
+                    for &(i, _, _) in &seen {
+                        let vi = v.fixed_rows::<4>(4 * i).into_owned();
+                        for &(j, _, _) in &seen {
+                            let vj = v.fixed_rows::<4>(4 * j).into_owned();
+                            let mut block = q.fixed_view_mut::<4, 4>(4 * i, 4 * j);
+                            block += vi * vj.transpose();
+                        }
+                    }
                 }
-            }
+                (d, q)
+            })
+            .collect();
+        let (mut d, mut q) = (DMatrix::<Real>::zeros(dim, dim), DMatrix::<Real>::zeros(dim, dim));
+        for (pd, pq) in parts {
+            d += pd;
+            q += pq;
         }
         let trace = d.trace();
         if !(trace > 0.0 && trace.is_finite()) {
