@@ -571,12 +571,14 @@ impl BSplineSurface {
     /// use nalgebra::Point3;
     /// use splineface::bspline::{BSplineSurface, KnotVector};
     ///
-    /// let k = KnotVector::clamped_uniform(3, 2, 0.0, 1.0)?;
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
     /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, ((i * 7) % 5) as f64)).collect();
     /// let s = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
-    /// let r = s.derivative_basis_matrix(&[[0.3, 0.7]], (1, 0))?;
-    /// let f_u = r.mul(s.control_points())[0].coords;
-    /// assert!((f_u - s.derivatives(0.3, 0.7, 1)?.get(1, 0)).norm() < 1e-12);
+    /// let d = s.derivatives(0.3, 0.7, 2)?;
+    /// for (k, l) in [(0, 0), (1, 0), (0, 1), (1, 1), (2, 0)] {
+    ///     let r = s.derivative_basis_matrix(&[[0.3, 0.7]], (k, l))?;
+    ///     assert!((r.mul(s.control_points())[0].coords - d.get(k, l)).norm() < 1e-12);
+    /// }
     /// # Ok::<(), splineface::bspline::BSplineError>(())
     /// ```
     ///
