@@ -536,15 +536,30 @@ impl BSplineSurface {
     /// As [`BSplineSurface::eval`].
     pub fn basis_matrix(&self, params: &[[Real; 2]]) -> Result<BasisMatrix, BSplineError> {
         let (p, q) = (self.degree_u(), self.degree_v());
+        self.assemble_basis(params, |su, sv, u, v, row_u, row_v| {
+            row_u[..=p].copy_from_slice(&basis_fixed::<RUNTIME>(&self.knots_u, su, u)[..=p]);
+            row_v[..=q].copy_from_slice(&basis_fixed::<RUNTIME>(&self.knots_v, sv, v)[..=q]);
+        })
+    }
+
+    /// A sparse basis matrix from each parameter pair's `u`- and `v`-rows: `rows(su, sv, u, v,
+    /// row_u, row_v)` fills the `p + 1` and `q + 1` values of the functions alive at spans
+    /// `su`, `sv`; the matrix holds their products.
+    fn assemble_basis(
+        &self,
+        params: &[[Real; 2]],
+        rows: impl Fn(usize, usize, Real, Real, &mut [Real], &mut [Real]),
+    ) -> Result<BasisMatrix, BSplineError> {
+        let (p, q) = (self.degree_u(), self.degree_v());
         let nnz = (p + 1) * (q + 1);
         let mut columns = Vec::with_capacity(params.len() * nnz);
         let mut values = Vec::with_capacity(params.len() * nnz);
+        let (mut row_u, mut row_v) = ([0.0; MAX_DEGREE + 1], [0.0; MAX_DEGREE + 1]);
         for &[u, v] in params {
             let (su, sv) = self.locate(u, v)?;
-            let nu = basis_fixed::<RUNTIME>(&self.knots_u, su, u);
-            let nv = basis_fixed::<RUNTIME>(&self.knots_v, sv, v);
-            for (a, &wu) in nu[..=p].iter().enumerate() {
-                for (b, &wv) in nv[..=q].iter().enumerate() {
+            rows(su, sv, u, v, &mut row_u, &mut row_v);
+            for (a, &wu) in row_u[..=p].iter().enumerate() {
+                for (b, &wv) in row_v[..=q].iter().enumerate() {
                     columns.push((su - p + a) * self.cols + sv - q + b);
                     values.push(wu * wv);
                 }
@@ -589,41 +604,20 @@ impl BSplineSurface {
         params: &[[Real; 2]],
         (k, l): (usize, usize),
     ) -> Result<BasisMatrix, BSplineError> {
-        let (p, q) = (self.degree_u(), self.degree_v());
-        let nnz = (p + 1) * (q + 1);
-        let mut columns = Vec::with_capacity(params.len() * nnz);
-        let mut values = Vec::with_capacity(params.len() * nnz);
-        let mut nu = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 1)];
-        let mut nv = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 1)];
-        for &[u, v] in params {
-            let (su, sv) = self.locate(u, v)?;
-            let (du, dv) = (k.min(p), l.min(q));
-            basis_derivatives(&self.knots_u, su, u, du, &mut nu);
-            basis_derivatives(&self.knots_v, sv, v, dv, &mut nv);
-            let zero = [0.0; MAX_DEGREE + 1];
-            let row_u = if k <= p {
-                &nu[k * (p + 1)..(k + 1) * (p + 1)]
-            } else {
-                &zero[..=p]
-            };
-            let row_v = if l <= q {
-                &nv[l * (q + 1)..(l + 1) * (q + 1)]
-            } else {
-                &zero[..=q]
-            };
-            for (a, &wu) in row_u.iter().enumerate() {
-                for (b, &wv) in row_v.iter().enumerate() {
-                    columns.push((su - p + a) * self.cols + sv - q + b);
-                    values.push(wu * wv);
-                }
+        // One direction's row of order `order`: zeros above the degree.
+        let row = |knots: &KnotVector, span: usize, t: Real, order: usize, out: &mut [Real]| {
+            let degree = knots.degree();
+            if order > degree {
+                out[..=degree].fill(0.0);
+                return;
             }
-        }
-        Ok(BasisMatrix {
-            nrows: params.len(),
-            ncols: self.rows * self.cols,
-            nnz_per_row: nnz,
-            columns,
-            values,
+            let mut table = [0.0; (MAX_DEGREE + 1) * (MAX_DEGREE + 1)];
+            basis_derivatives(knots, span, t, order, &mut table);
+            out[..=degree].copy_from_slice(&table[order * (degree + 1)..(order + 1) * (degree + 1)]);
+        };
+        self.assemble_basis(params, |su, sv, u, v, row_u, row_v| {
+            row(&self.knots_u, su, u, k, row_u);
+            row(&self.knots_v, sv, v, l, row_v);
         })
     }
 
