@@ -332,7 +332,7 @@ fn from_truth(
     let all = [
         (
             "image",
-            "in the image, 0.12 eye distances (the default)".to_owned(),
+            "in the image, 0.12 eye distances (the former default)".to_owned(),
             Window::Image,
             0.12,
             beta,
@@ -367,7 +367,7 @@ fn from_truth(
         ),
         (
             "lit",
-            format!("none: the photos compared with the face lit (`Window::Lit`), β = {beta}"),
+            format!("none: the photos compared with the face lit (`Window::Lit`, the default), β = {beta}"),
             Window::Lit,
             0.12,
             beta,
