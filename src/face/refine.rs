@@ -1050,9 +1050,7 @@ impl Samples {
             })
             .collect()
     }
-}
 
-impl Samples {
     /// Every sample's unit normal on the identity surface at `state` and its derivatives in
     /// the identity weights ([`Window::Lit`]): with `m = F_u × F_v` (`F = B + Σₖ wₖ Dₖ`),
     /// `n = m / |m|` and `∂n/∂wₖ = (I − n nᵀ) (Dₖ,ᵤ × F_v + F_u × Dₖ,ᵥ) / |m|`, turned toward
@@ -1592,33 +1590,27 @@ impl Level<'_> {
             .collect()
     }
 
-    /// Per photo and sample: the local mean and inverse deviation of the photo's intensities
-    /// over the sample's neighbours on the surface that the photo sees (the normalisation
-    /// `N = (I − mean) · inverse`). A window on the surface, not in the image, covers the
-    /// same part of the face in every photo however obliquely each sees it; a window in the
-    /// image would not, and measurably biased the shape.
-    fn normalisers(&self, state: &State, visibility: &[Vec<Real>]) -> Normalisation {
-        let plain = |scales: Vec<Vec<(Real, Real)>>| Normalisation {
-            scales: scales
-                .into_iter()
-                .map(|photo| {
-                    photo
-                        .into_iter()
-                        .map(|(mean, inverse)| Normaliser {
-                            mean,
-                            inverse,
-                            d_normal: Vector3::zeros(),
-                        })
-                        .collect()
-                })
-                .collect(),
+    /// Per photo and sample at `state` (its samples `placed`, [`Samples::placed`]): how the
+    /// photo's intensity there is normalised, `N = (I − mean) · inverse`. With a window on the
+    /// surface, the local mean and inverse deviation of the photo's intensities over the
+    /// sample's neighbours that the photo sees: it covers the same part of the face in every
+    /// photo however obliquely each sees it (a window in the image would not, and measurably
+    /// biased the shape; [`Window::Image`]'s crops are normalised already). With
+    /// [`Window::Lit`], [`Level::lit`]'s.
+    fn normalisers(&self, state: &State, placed: &[Placed], visibility: &[Vec<Real>]) -> Normalisation {
+        let plain = |scales: Vec<Vec<Normaliser>>| Normalisation {
+            scales,
             normal_modes: Vec::new(),
         };
         if self.options.window == Window::Image {
             // The images are normalised already.
-            return plain(vec![vec![(0.0, 1.0); self.samples.len()]; state.cameras.len()]);
+            let identity = Normaliser {
+                mean: 0.0,
+                inverse: 1.0,
+                d_normal: Vector3::zeros(),
+            };
+            return plain(vec![vec![identity; self.samples.len()]; state.cameras.len()]);
         }
-        let placed = self.samples.placed(state);
         let raw: Vec<Vec<Option<Real>>> = state
             .cameras
             .par_iter()
@@ -1630,7 +1622,7 @@ impl Level<'_> {
                         if visibility[i][s] <= 0.0 {
                             return None;
                         }
-                        let x = self.samples.point(&placed, s, i);
+                        let x = self.samples.point(placed, s, i);
                         let projected = camera.project(&x)?;
                         image.sample(&image.crop_of(&projected.p)).map(|(v, _)| v)
                     })
@@ -1663,13 +1655,19 @@ impl Level<'_> {
                                 squares += w * v * v;
                             }
                         }
-                        if total <= 0.0 {
-                            return (0.0, 0.0);
+                        let (mean, inverse) = if total <= 0.0 {
+                            (0.0, 0.0)
+                        } else {
+                            let mean = sum / total;
+                            let variance = (squares / total - mean * mean).max(0.0);
+                            let inverse = 1.0 / (variance + DEVIATION_FLOOR * DEVIATION_FLOOR).sqrt();
+                            (mean * shading[s], inverse / shading[s])
+                        };
+                        Normaliser {
+                            mean,
+                            inverse,
+                            d_normal: Vector3::zeros(),
                         }
-                        let mean = sum / total;
-                        let variance = (squares / total - mean * mean).max(0.0);
-                        let inverse = 1.0 / (variance + DEVIATION_FLOOR * DEVIATION_FLOOR).sqrt();
-                        (mean * shading[s], inverse / shading[s])
                     })
                     .collect()
             })
@@ -1799,8 +1797,8 @@ impl Level<'_> {
         visibility: &[Vec<Real>],
         f: impl Fn(&[Seen], Real, Real) -> T + Sync,
     ) -> Vec<Option<T>> {
-        let normalisation = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
+        let normalisation = self.normalisers(state, &placed, visibility);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
@@ -2052,8 +2050,8 @@ impl Level<'_> {
         state: &State,
         visibility: &[Vec<Real>],
     ) -> (DMatrix<Real>, DVector<Real>, Real) {
-        let normalisation = self.normalisers(state, visibility);
         let placed = self.samples.placed(state);
+        let normalisation = self.normalisers(state, &placed, visibility);
         let k = state.weights.len();
         let n = state.unknowns();
         let field = k + CAMERA * state.cameras.len();
@@ -2998,9 +2996,6 @@ mod tests {
         assert!((g - expected_g).amax() < 1e-12);
     }
 
-    /// The separable blur against the Gaussian's definition: every output pixel the
-    /// normalised two-dimensional kernel's weighted sum of the input, borders clamped
-    /// (odd sizes, a kernel wider than the image, and a one-pixel image included).
     /// The shape's own normals and their derivatives in the identity weights
     /// ([`Samples::shape_normals`]) against central differences of the normals themselves,
     /// away from the mean face (every mode's weight non-zero); the normals are the base
@@ -3117,6 +3112,9 @@ mod tests {
         }
     }
 
+    /// The separable blur against the Gaussian's definition: every output pixel the
+    /// normalised two-dimensional kernel's weighted sum of the input, borders clamped
+    /// (odd sizes, a kernel wider than the image, and a one-pixel image included).
     #[test]
     fn blur_is_the_clamped_gaussian_sum() {
         for (width, height, sigma) in [(37, 23, 1.3), (9, 14, 4.0), (1, 1, 2.0), (64, 3, 0.7)] {
