@@ -187,6 +187,28 @@ pub struct RefineOptions {
     /// the weighted refinement ended 2.2 units from the truth, against 1.1 unweighted and 0.8
     /// for the good photos alone (why is not yet measured).
     pub photo_weights: bool,
+    /// [`Window::Lit`]: shade each photo over the normals of the face with that photo's
+    /// expression (the landmark fit's), rather than over the identity's alone. On by default.
+    /// Measured by `tools/photo_eval` (mean ratio to the mean face; the identity's normals are
+    /// the session start's default, the runs of `tools/results/photos.md` and
+    /// `expressions.md` at commit 7243839):
+    ///
+    /// | photos (3 / 8) | neutral | smile | open jaw | smile / neutral | open jaw / neutral |
+    /// |---|---|---|---|---|---|
+    /// | identity's normals | 0.70 / 0.62 | 0.85 / 0.83 | 0.72 / 0.67 | 1.22 / 1.30 | 1.04 / 1.09 |
+    /// | **each photo's** | 0.69 / 0.61 | 0.76 / 0.71 | 0.75 / 0.70 | 1.11 / 1.15 | 1.09 / 1.17 |
+    /// | the photos' mean expression | 0.70 / 0.62 | 0.80 / 0.77 | 0.76 / 0.70 | 1.18 / 1.24 | 1.10 / 1.14 |
+    ///
+    /// On the main evaluation (105 sets) the mean ratio to the landmark fit went from 0.811 to
+    /// 0.806 (the photos' mean expression: 0.812), but on the real scan's sets from 0.815× to
+    /// 0.833× the mean face on average, and 5 sets came out more than 2% worse than the
+    /// landmark fit (1 before; 4 of them the scan's, up to 1.07×): on the scan's neutral photos
+    /// the landmark fit finds expressions that are not there (a nose sneer of 0.3 in every
+    /// photo of `lps-head/photos-8`), and their normals shade the nose wrongly. Fading out
+    /// samples the expression stretches (lips parted over the mouth's inside, an area ratio
+    /// beyond 1.5) changed the open jaw's figures by 0.01 and was dropped. The visibility
+    /// follows the same normals.
+    pub expression_normals: bool,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
     /// that helped and on those that did not alike.
@@ -381,6 +403,7 @@ impl Default for RefineOptions {
             min_gain: 0.0,
             full_gain: 0.05,
             photo_weights: false,
+            expression_normals: true,
             landmark_slack: Real::INFINITY,
             held_out: false,
             min_held_out_gain: 0.0,
@@ -411,12 +434,14 @@ pub enum Window {
     /// Analysis by synthesis: each photo is compared with the face *lit*, not with a window
     /// of itself. The photos' intensities are made linear (the sRGB curve undone), each
     /// photo's first-order spherical-harmonic lighting is fitted over the **current shape's
-    /// own normals** (the albedo per sample shared by the photos, as [`Window::Shaded`]
-    /// fits it), divided out, and what is left is scaled by a gain and bias per photo (its
+    /// own normals** in that photo (the identity surface with the photo's expression from the
+    /// landmark fit; the albedo per sample shared by the photos, as [`Window::Shaded`] fits
+    /// it), divided out, and what is left is scaled by a gain and bias per photo (its
     /// mean and deviation over the samples it sees). The shading stays in the measure: the
     /// brightness falling off across a nose's side depends on the nose's shape, and the
     /// Gauss-Newton steps follow it through the normals' derivatives in the identity weights
-    /// (the field's bending of the normals is left out of its Jacobian; the cost is exact).
+    /// (the identity surface's, shared by the photos; the field's bending of the normals is
+    /// left out). The photos' visibility follows the same normals.
     /// Chosen after `tools/photo_eval --from-truth` found that under every window the true
     /// face left the photos disagreeing more than the refined one: a window of a photo's own
     /// intensities removes the shading that says where the surface turns, and keeps the
@@ -898,6 +923,9 @@ struct Samples {
     /// displacement's `(D_u, D_v)`: what the shape's own normals are made of ([`Window::Lit`];
     /// empty for the other windows).
     partials: Vec<(Tangents, Vec<Tangents>)>,
+    /// Per photo and sample, its expression displacement's `(E_u, E_v)` (`[i][s]`; empty
+    /// without partials or expressions).
+    expression_partials: Vec<Vec<Tangents>>,
 }
 
 /// A surface's (or a mode's) partial derivatives `(∂/∂u, ∂/∂v)` at a sample.
@@ -972,35 +1000,41 @@ impl Samples {
             .into_iter()
             .map(|n: Vector3<Real>| if n.z < 0.0 { -n } else { n })
             .collect();
-        let partials = if partials {
-            // One evaluation of the basis's derivatives per sample serves the base and every
-            // mode.
+        let (partials, expression_partials) = if partials {
+            // One evaluation of the basis's derivatives per sample serves the base, every mode
+            // and every photo's expression.
             let (du, dv) = (
                 base_surface.derivative_basis_matrix(&params, (1, 0))?,
                 base_surface.derivative_basis_matrix(&params, (0, 1))?,
             );
+            let apply = |s: usize, grid: &dyn Fn(usize) -> Vector3<Real>| -> Tangents {
+                let ((cu, wu), (cv, wv)) = (du.row(s), dv.row(s));
+                [
+                    cu.iter().zip(wu).map(|(&c, &w)| grid(c) * w).sum(),
+                    cv.iter().zip(wv).map(|(&c, &w)| grid(c) * w).sum(),
+                ]
+            };
             let base_points = base_surface.control_points();
             let modes = surfaces.modes();
-            (0..params.len())
+            let partials = (0..params.len())
                 .into_par_iter()
                 .map(|s| {
-                    let ((cu, wu), (cv, wv)) = (du.row(s), dv.row(s));
-                    let apply = |grid: &dyn Fn(usize) -> Vector3<Real>| -> Tangents {
-                        [
-                            cu.iter().zip(wu).map(|(&c, &w)| grid(c) * w).sum(),
-                            cv.iter().zip(wv).map(|(&c, &w)| grid(c) * w).sum(),
-                        ]
-                    };
-                    let base = apply(&|c| base_points[c].coords);
-                    let mode_tangents = modes.iter().map(|m| apply(&|c| m[c])).collect();
+                    let base = apply(s, &|c| base_points[c].coords);
+                    let mode_tangents = modes.iter().map(|m| apply(s, &|c| m[c])).collect();
                     (base, mode_tangents)
                 })
-                .collect()
+                .collect();
+            let expression_partials = expressions
+                .par_iter()
+                .map(|grid| (0..params.len()).map(|s| apply(s, &|c| grid[c])).collect())
+                .collect();
+            (partials, expression_partials)
         } else {
-            Vec::new()
+            (Vec::new(), Vec::new())
         };
         Ok(Samples {
             partials,
+            expression_partials,
             base: sampled.base,
             modes,
             expression,
@@ -1054,12 +1088,21 @@ impl Samples {
     /// Every sample's unit normal on the identity surface at `state` and its derivatives in
     /// the identity weights ([`Window::Lit`]): with `m = F_u × F_v` (`F = B + Σₖ wₖ Dₖ`),
     /// `n = m / |m|` and `∂n/∂wₖ = (I − n nᵀ) (Dₖ,ᵤ × F_v + F_u × Dₖ,ᵥ) / |m|`, turned toward
-    /// the mean face's normal. The field's lift and the photos' expressions are left out.
-    fn shape_normals(&self, state: &State) -> Vec<(Vector3<Real>, Vec<Vector3<Real>>)> {
-        self.partials
+    /// the mean face's normal; and each photo's normals, those of the identity surface with
+    /// the photo's expression `Eᵢ` (`(F + Eᵢ)_u × (F + Eᵢ)_v`, normalised; the identity's
+    /// normals for every photo without expressions). The field's lift is left out.
+    ///
+    /// The derivatives are the identity surface's, not each photo's: the Gauss-Newton
+    /// equations share one Jacobian of the normal among the photos that see a sample
+    /// ([`Level::add_sample`]); the cost itself shades each photo with its own normals.
+    /// Without `derivatives` the derivatives are left empty (what visibility needs).
+    fn shape_normals(&self, state: &State, derivatives: bool) -> ShapeNormals {
+        let per_sample: Vec<(NormalJet, Vec<Vector3<Real>>)> = self
+            .partials
             .par_iter()
             .zip(&self.normals)
-            .map(|(([base_u, base_v], modes), mean_normal)| {
+            .enumerate()
+            .map(|(s, (([base_u, base_v], modes), mean_normal))| {
                 let (mut fu, mut fv) = (*base_u, *base_v);
                 for ([du, dv], w) in modes.iter().zip(&state.weights) {
                     fu += du * *w;
@@ -1068,20 +1111,53 @@ impl Samples {
                 let m = fu.cross(&fv);
                 let length = m.norm();
                 if length.is_nan() || length <= 1e-12 {
-                    return (*mean_normal, vec![Vector3::zeros(); modes.len()]);
+                    let photos = vec![*mean_normal; self.expression_partials.len()];
+                    return ((*mean_normal, vec![Vector3::zeros(); modes.len()]), photos);
                 }
                 let sign = if m.dot(mean_normal) < 0.0 { -1.0 } else { 1.0 };
                 let n = m * (sign / length);
                 let project = |d: Vector3<Real>| (d - n * n.dot(&d)) * (sign / length);
                 let derivatives = modes
                     .iter()
-                    .take(state.weights.len())
+                    .take(if derivatives { state.weights.len() } else { 0 })
                     .map(|[du, dv]| project(du.cross(&fv) + fu.cross(dv)))
                     .collect();
-                (n, derivatives)
+                let photos = self
+                    .expression_partials
+                    .iter()
+                    .map(|photo| {
+                        let [eu, ev] = photo[s];
+                        let m = (fu + eu).cross(&(fv + ev));
+                        let length = m.norm();
+                        if length.is_nan() || length <= 1e-12 {
+                            n
+                        } else {
+                            m * (if m.dot(mean_normal) < 0.0 { -1.0 } else { 1.0 } / length)
+                        }
+                    })
+                    .collect();
+                ((n, derivatives), photos)
             })
-            .collect()
+            .collect();
+        let (identity, by_sample): (Vec<_>, Vec<_>) = per_sample.into_iter().unzip();
+        let photos = (0..self.expression_partials.len())
+            .map(|i| by_sample.iter().map(|photos| photos[i]).collect())
+            .collect();
+        ShapeNormals { identity, photos }
     }
+}
+
+/// A unit normal and its derivatives in the identity weights.
+type NormalJet = (Vector3<Real>, Vec<Vector3<Real>>);
+
+/// The shape's own normals at a state ([`Samples::shape_normals`]).
+struct ShapeNormals {
+    /// Per sample: the identity surface's unit normal and its derivatives in the identity
+    /// weights.
+    identity: Vec<NormalJet>,
+    /// Per photo and sample (`[i][s]`): the normal with the photo's expression; empty
+    /// without expressions.
+    photos: Vec<Vec<Vector3<Real>>>,
 }
 
 /// How a photo's intensities are normalised at one sample: `N = (I − mean) · inverse`, and
@@ -1160,10 +1236,10 @@ fn neighbours(cells: &[(i64, i64)], spacing: Real, window_eyes: Real) -> Vec<Vec
 /// (nine coefficients, alternating) was no better on the scan. A prior toward ambient light strong enough to matter (1% of the ambient weight
 /// on each direction) already moves the unit test's exact answer by 15%: the photos say
 /// little about the directional light over a face's narrow range of normals.
-fn fit_shading(
+fn fit_shading<N: AsRef<[Vector3<Real>]> + Sync>(
     raw: &[Vec<Option<Real>>],
     visibility: &[Vec<Real>],
-    normals: &[Vector3<Real>],
+    normals: &[N],
 ) -> Vec<Vec<Real>> {
     shading_of(
         fit_lights(raw, visibility, normals).as_deref(),
@@ -1180,21 +1256,23 @@ fn fit_shading(
 /// them) and its derivative in the sample's normal: `Sᵢₛ = max(lᵢ · (1, nₛ) / l̄ᵢ, 0.1)`
 /// with `l̄ᵢ` the photo's mean of `lᵢ · (1, nₛ)` over the samples it sees, and
 /// `∂Sᵢₛ/∂nₛ = (lᵢ,ₓ, lᵢ,ᵧ, lᵢ,𝓏) / l̄ᵢ` (zero where the floor holds it).
-fn shading_of(
+fn shading_of<N: AsRef<[Vector3<Real>]>>(
     lights: Option<&[nalgebra::Vector4<Real>]>,
     raw: &[Vec<Option<Real>>],
     visibility: &[Vec<Real>],
-    normals: &[Vector3<Real>],
+    normals: &[N],
 ) -> Vec<Vec<(Real, Vector3<Real>)>> {
-    let n = normals.len();
+    let n = normals.first().map_or(0, |photo| photo.as_ref().len());
     let Some(lights) = lights else {
         return vec![vec![(1.0, Vector3::zeros()); n]; raw.len()];
     };
     lights
         .iter()
+        .zip(normals)
         .enumerate()
-        .map(|(i, light)| {
+        .map(|(i, (light, normals))| {
             let shade: Vec<Real> = normals
+                .as_ref()
                 .iter()
                 .map(|v| light.dot(&nalgebra::Vector4::new(1.0, v.x, v.y, v.z)))
                 .collect();
@@ -1227,14 +1305,19 @@ fn shading_of(
 }
 
 /// The lights of [`fit_shading`]; `None` when the photos say too little to fit them.
-fn fit_lights(
+fn fit_lights<N: AsRef<[Vector3<Real>]> + Sync>(
     raw: &[Vec<Option<Real>>],
     visibility: &[Vec<Real>],
-    normals: &[Vector3<Real>],
+    normals: &[N],
 ) -> Option<Vec<nalgebra::Vector4<Real>>> {
-    let (photos, n) = (raw.len(), normals.len());
-    let basis = |s: usize| {
-        let v = normals[s];
+    let photos = raw.len();
+    let n = normals.first().map_or(0, |photo| photo.as_ref().len());
+    if normals.len() != photos || normals.iter().any(|photo| photo.as_ref().len() != n) {
+        return None;
+    }
+    // Photo `i`'s lighting basis at sample `s`: `(1, nᵢₛ)`.
+    let basis = |i: usize, s: usize| {
+        let v = normals[i].as_ref()[s];
         nalgebra::Vector4::new(1.0, v.x, v.y, v.z)
     };
     let dim = 4 * photos;
@@ -1281,13 +1364,12 @@ fn fit_lights(
                     if seen.len() < 2 {
                         continue;
                     }
-                    let h = basis(s);
-                    let hh = h * h.transpose();
                     let squares: Real = seen.iter().map(|&(_, w, value)| w * value * value).sum();
                     v.fill(0.0);
                     for &(i, w, value) in &seen {
+                        let h = basis(i, s);
                         let mut block = d.fixed_view_mut::<4, 4>(4 * i, 4 * i);
-                        block += hh * (squares * w);
+                        block += h * h.transpose() * (squares * w);
                         v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
                     }
                     for &(i, _, _) in &seen {
@@ -1332,11 +1414,10 @@ fn fit_lights(
         // The sign: shading is positive on the whole.
         let total: Real = (0..n)
             .map(|s| {
-                let h = basis(s);
                 found
                     .iter()
                     .enumerate()
-                    .map(|(i, l)| weights[i][s] * l.dot(&h))
+                    .map(|(i, l)| weights[i][s] * l.dot(&basis(i, s)))
                     .sum::<Real>()
             })
             .sum();
@@ -1355,15 +1436,14 @@ fn reweight(
     raw: &[Vec<Option<Real>>],
     visibility: &[Vec<Real>],
     lights: &[nalgebra::Vector4<Real>],
-    basis: &impl Fn(usize) -> nalgebra::Vector4<Real>,
+    basis: &impl Fn(usize, usize) -> nalgebra::Vector4<Real>,
 ) {
     let photos = lights.len();
     for s in 0..weights.first().map_or(0, Vec::len) {
-        let h = basis(s);
         let (mut top, mut bottom) = (0.0, 0.0);
         for i in 0..photos {
             if let Some(value) = raw[i][s] {
-                let shade = lights[i].dot(&h);
+                let shade = lights[i].dot(&basis(i, s));
                 let c = visibility[i][s].max(0.0);
                 top += c * value * shade;
                 bottom += c * shade * shade;
@@ -1375,7 +1455,7 @@ fn reweight(
         let albedo = top / bottom;
         for i in 0..photos {
             if let Some(value) = raw[i][s] {
-                let residual = value - albedo * lights[i].dot(&h);
+                let residual = value - albedo * lights[i].dot(&basis(i, s));
                 weights[i][s] = visibility[i][s].max(0.0) * cauchy(residual, 0.1 * value.abs().max(1e-3));
             }
         }
@@ -1500,9 +1580,20 @@ fn cauchy(r: Real, c: Real) -> Real {
 
 impl Level<'_> {
     /// Which photos see which samples under `state`: per photo, a weight per sample (how
-    /// squarely it is seen, 0 when facing away or hidden), times the photo's weight.
+    /// squarely it is seen, 0 when facing away or hidden), times the photo's weight. How
+    /// squarely: by the shape's own normals in the photo (its expression's,
+    /// [`Samples::shape_normals`]) where the level keeps them ([`Window::Lit`]), else by the
+    /// mean face's.
     fn visibility(&self, state: &State) -> Vec<Vec<Real>> {
         let placed = self.samples.placed(state);
+        let shape = (!self.samples.partials.is_empty()).then(|| self.samples.shape_normals(state, false));
+        let normal = |i: usize, s: usize| match &shape {
+            Some(shape) => match shape.photos.get(i) {
+                Some(photo) if self.options.expression_normals => photo[s],
+                _ => shape.identity[s].0,
+            },
+            None => self.samples.normals[s],
+        };
         state
             .cameras
             .par_iter()
@@ -1518,8 +1609,7 @@ impl Level<'_> {
                         places.push(None);
                         continue;
                     };
-                    let normal = camera.rotation * self.samples.normals[s];
-                    let facing = normal.dot(&camera.towards_from(&q));
+                    let facing = (camera.rotation * normal(i, s)).dot(&camera.towards_from(&q));
                     *item = ((facing - 0.15) / 0.35).clamp(0.0, 1.0);
                     places.push(Some((image.crop_of(&p), q.z)));
                 }
@@ -1633,7 +1723,7 @@ impl Level<'_> {
             return self.lit(state, &raw, visibility);
         }
         let shading = match self.options.window {
-            Window::Shaded => fit_shading(&raw, visibility, &self.samples.normals),
+            Window::Shaded => fit_shading(&raw, visibility, &vec![&self.samples.normals[..]; raw.len()]),
             _ => vec![vec![1.0; self.samples.len()]; raw.len()],
         };
         let scales = raw
@@ -1681,8 +1771,16 @@ impl Level<'_> {
     /// `I / S` over the samples it sees): `N = (I / S − mᵢ) / dᵢ = (I − mᵢ S) / (S dᵢ)`, and
     /// `∂N/∂n = −I / (S² dᵢ) · ∂S/∂n` ([`shading_of`]).
     fn lit(&self, state: &State, raw: &[Vec<Option<Real>>], visibility: &[Vec<Real>]) -> Normalisation {
+        let ShapeNormals { identity, photos } = self.samples.shape_normals(state, true);
         let (normals, normal_modes): (Vec<Vector3<Real>>, Vec<Vec<Vector3<Real>>>) =
-            self.samples.shape_normals(state).into_iter().unzip();
+            identity.into_iter().unzip();
+        // Each photo shaded over its own normals (its expression's); the identity's without
+        // expressions.
+        let normals: Vec<&[Vector3<Real>]> = if self.options.expression_normals && photos.len() == raw.len() {
+            photos.iter().map(Vec::as_slice).collect()
+        } else {
+            vec![&normals[..]; raw.len()]
+        };
         let lights = fit_lights(raw, visibility, &normals);
         let shading = shading_of(lights.as_deref(), raw, visibility, &normals);
         let scales = raw
@@ -3013,7 +3111,7 @@ mod tests {
             cameras: Vec::new(),
             field: Vec::new(),
         };
-        let at_zero = samples.shape_normals(&state(vec![0.0; k]));
+        let at_zero = samples.shape_normals(&state(vec![0.0; k]), true).identity;
         for ((n, _), mean) in at_zero.iter().zip(&samples.normals) {
             assert!((n - mean).norm() < 1e-9, "{n} against {mean}");
         }
@@ -3023,14 +3121,14 @@ mod tests {
             .enumerate()
             .map(|(m, s)| s * [0.8, -1.1, 0.5][m % 3])
             .collect();
-        let normals = samples.shape_normals(&state(weights.clone()));
+        let normals = samples.shape_normals(&state(weights.clone()), true).identity;
         let h = 1e-4;
         let mut worst: Real = 0.0;
         for m in [0, 1, 7, k - 1] {
             let step = |d: Real| {
                 let mut w = weights.clone();
                 w[m] += d * space.sigma()[m];
-                samples.shape_normals(&state(w))
+                samples.shape_normals(&state(w), true).identity
             };
             let (up, down) = (step(h), step(-h));
             for (s, (n, derivatives)) in normals.iter().enumerate() {
@@ -3041,6 +3139,30 @@ mod tests {
             }
         }
         assert!(worst < 1e-5, "relative error of the derivatives {worst:e}");
+
+        // A photo whose expression is mode 3's displacement (one deviation) and another's
+        // that is nothing: their normals are the identity surface's with mode 3 moved by one
+        // deviation, and the identity surface's.
+        let sigma = space.sigma()[3];
+        let expressions = [
+            space.surfaces().modes()[3].iter().map(|d| d * sigma).collect(),
+            vec![Vector3::zeros(); space.surfaces().modes()[3].len()],
+        ];
+        let with = Samples::new(&space, &reference, &expressions, 12.0, NORMALISATION_EYES, true).unwrap();
+        let shaped = with.shape_normals(&state(weights.clone()), true);
+        assert_eq!(shaped.photos.len(), 2);
+        let mut moved = weights.clone();
+        moved[3] += sigma;
+        let expected = samples.shape_normals(&state(moved), true).identity;
+        for s in 0..samples.len() {
+            assert!((shaped.photos[0][s] - expected[s].0).norm() < 1e-9);
+            assert!((shaped.photos[1][s] - normals[s].0).norm() < 1e-9);
+            assert!((shaped.identity[s].0 - normals[s].0).norm() < 1e-12);
+        }
+        assert!(
+            (0..samples.len()).any(|s| (expected[s].0 - normals[s].0).norm() > 1e-3),
+            "the expression turns some normals"
+        );
     }
 
     /// The folds deal the photos out in order of yaw: every fold holds out photos from both
@@ -3148,7 +3270,8 @@ mod tests {
 
     /// Intensities made exactly as the model says (an albedo per sample times each photo's
     /// first-order lighting) give back each photo's shading, scaled to a mean of 1 where it
-    /// sees; a photo that does not see a sample does not disturb it.
+    /// sees, over each photo's own normals (one photo's expression turns half of them); a
+    /// photo that does not see a sample does not disturb it.
     #[test]
     fn shading_recovers_each_photos_light() {
         let normals: Vec<Vector3<Real>> = (0..400)
@@ -3161,8 +3284,24 @@ mod tests {
             .map(|s| 0.4 + 0.3 * ((s as Real * 0.37).sin() * 0.5 + 0.5))
             .collect();
         let lights = [[0.5, 0.4, 0.1, 0.3], [0.6, -0.3, 0.2, 0.2], [0.4, 0.0, -0.2, 0.5]];
+        // Photo 1 sees the face with an expression: its lower half's normals turned.
+        let photo_normals: Vec<Vec<Vector3<Real>>> = (0..3)
+            .map(|i| {
+                normals
+                    .iter()
+                    .enumerate()
+                    .map(|(s, n)| {
+                        if i == 1 && s >= 200 {
+                            (n + Vector3::new(0.3, -0.2, 0.0)).normalize()
+                        } else {
+                            *n
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
         let shade = |i: usize, s: usize| {
-            let (l, n) = (lights[i], normals[s]);
+            let (l, n) = (lights[i], photo_normals[i][s]);
             l[0] + l[1] * n.x + l[2] * n.y + l[3] * n.z
         };
         // Photo 2 does not see the left quarter of the samples.
@@ -3177,8 +3316,16 @@ mod tests {
         let visibility: Vec<Vec<Real>> = (0..3)
             .map(|i| (0..400).map(|s| if sees(i, s) { 1.0 } else { 0.0 }).collect())
             .collect();
-        let fitted = fit_shading(&raw, &visibility, &normals);
+        let fitted = fit_shading(&raw, &visibility, &photo_normals);
         assert_eq!(fitted.len(), 3);
+        // The photos' normals must be each photo's: one set of normals for all three does
+        // not explain photo 1.
+        let shared = fit_shading(&raw, &visibility, &[&normals[..]; 3]);
+        let expected = |s: usize| {
+            let mean = (0..400).map(|t| shade(1, t)).sum::<Real>() / 400.0;
+            shade(1, s) / mean
+        };
+        assert!((200..400).any(|s| (shared[1][s] - expected(s)).abs() > 0.05 * expected(s)));
         for (i, fitted) in fitted.iter().enumerate() {
             let seen: Vec<usize> = (0..400).filter(|&s| sees(i, s)).collect();
             let mean = seen.iter().map(|&s| shade(i, s)).sum::<Real>() / seen.len() as Real;

@@ -1571,6 +1571,15 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
+            "refine identity normals",
+            with(&|o| {
+                o.refine = Some(RefineOptions {
+                    expression_normals: false,
+                    ..RefineOptions::default()
+                })
+            }),
+        ),
+        method(
             "refine photo weights",
             with(&|o| {
                 o.refine = Some(RefineOptions {
