@@ -1343,8 +1343,8 @@ fn fit_lights<N: AsRef<[Vector3<Real>]> + Sync>(
         }
         // The pairs' disagreement is `2 (D − V)` in the lights, `D` block diagonal
         // (`Σₛ (Σᵢ cᵢ Iᵢ²) cⱼ hⱼ hⱼᵀ` per photo `j`, `hᵢ = (1, nᵢₛ)` over photo `i`'s normals)
-        // and `V = Σₛ v vᵀ`, `v = (cᵢ Iᵢ hᵢ)ᵢ`; its ratio to `D` is the weighted `sin²` of the angle between each sample's intensities and its
-        // shadings, so the lights maximise `Lᵀ V L / Lᵀ D L`: a generalised eigenproblem. (The
+        // and `V = Σₛ v vᵀ`, `v = (cᵢ Iᵢ hᵢ)ᵢ`; its ratio to `D` is the weighted `sin²` of the
+        // angle between each sample's intensities and its shadings, so the lights maximise `Lᵀ V L / Lᵀ D L`: a generalised eigenproblem. (The
         // plain smallest eigenvector of `D − V` prefers lights that shade the whole face dark,
         // `1 − n_z` being nearly zero on a face seen from the front.)
         // In fixed chunks of samples, each summed in order and the chunks in order: the same
