@@ -1322,6 +1322,8 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         f(&mut o);
         o
     };
+    // The default pipeline with these refinement options.
+    let refined = |options: RefineOptions| with(&|o| o.refine = Some(options));
     let method = |name, options| Method {
         name,
         options,
@@ -1466,202 +1468,162 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         ),
         method(
             "refine β0.1",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    beta: 0.1,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                beta: 0.1,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine β0.3",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    beta: 0.3,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                beta: 0.3,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine field",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    field: true,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                field: true,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine field ungated",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    field: true,
-                    min_gain: Real::NEG_INFINITY,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                field: true,
+                min_gain: Real::NEG_INFINITY,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine surface window",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Surface,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Surface,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine shaded",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Shaded,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Shaded,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine lit",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Lit,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Lit,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine lit ungated",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Lit,
-                    min_gain: Real::NEG_INFINITY,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Lit,
+                min_gain: Real::NEG_INFINITY,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine lit gate 0",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Lit,
-                    min_gain: 0.0,
-                    full_gain: 0.05,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Lit,
+                min_gain: 0.0,
+                full_gain: 0.05,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine lit ungated beta 0.1",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Lit,
-                    min_gain: Real::NEG_INFINITY,
-                    beta: 0.1,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Lit,
+                min_gain: Real::NEG_INFINITY,
+                beta: 0.1,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine shaded ungated",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    window: splineface::face::Window::Shaded,
-                    min_gain: Real::NEG_INFINITY,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                window: splineface::face::Window::Shaded,
+                min_gain: Real::NEG_INFINITY,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine identity normals",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    expression_normals: false,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                expression_normals: false,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine photo weights",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    photo_weights: true,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                photo_weights: true,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine ungated",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    min_gain: Real::NEG_INFINITY,
-                    landmark_slack: Real::INFINITY,
-                    held_out: false,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                min_gain: Real::NEG_INFINITY,
+                landmark_slack: Real::INFINITY,
+                held_out: false,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine iterations 8",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    iterations: 8,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                iterations: 8,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine four levels",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    levels: 4,
-                    eye_pixels: 160.0,
-                    spacing: 1.0,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                levels: 4,
+                eye_pixels: 160.0,
+                spacing: 1.0,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine spacing 1",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    spacing: 1.0,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                spacing: 1.0,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine held-out",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    held_out: true,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                held_out: true,
+                ..RefineOptions::default()
             }),
         ),
         method(
             "refine held-out ungated",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    min_gain: Real::NEG_INFINITY,
-                    held_out: true,
-                    min_held_out_gain: Real::NEG_INFINITY,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                min_gain: Real::NEG_INFINITY,
+                held_out: true,
+                min_held_out_gain: Real::NEG_INFINITY,
+                ..RefineOptions::default()
             }),
         ),
         // The refinement kept in proportion to the disagreement's fall between two thresholds
         // (RefineOptions::full_gain; the default ramps from 10% to 20%), or a step (the former
         // default).
-        method("refine step 15", with(&|o| o.refine = Some(soft(0.15, 0.15)))),
-        method("refine soft 10-25", with(&|o| o.refine = Some(soft(0.10, 0.25)))),
-        method("refine soft 5-20", with(&|o| o.refine = Some(soft(0.05, 0.20)))),
-        method("refine soft 15-25", with(&|o| o.refine = Some(soft(0.15, 0.25)))),
+        method("refine step 15", refined(soft(0.15, 0.15))),
+        method("refine soft 10-25", refined(soft(0.10, 0.25))),
+        method("refine soft 5-20", refined(soft(0.05, 0.20))),
+        method("refine soft 15-25", refined(soft(0.15, 0.25))),
         method(
             "refine orthographic",
-            with(&|o| {
-                o.refine = Some(RefineOptions {
-                    perspective: false,
-                    ..RefineOptions::default()
-                })
+            refined(RefineOptions {
+                perspective: false,
+                ..RefineOptions::default()
             }),
         ),
     ];
