@@ -931,20 +931,31 @@ struct Samples {
     expression_partials: Vec<Vec<Tangents>>,
 }
 
+/// Which partial derivatives [`Samples::new`] keeps: none (the windows), the identity
+/// space's ([`Window::Lit`]), or also each photo's expression's
+/// ([`RefineOptions::expression_normals`]).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Partials {
+    None,
+    Identity,
+    WithExpressions,
+}
+
 /// A surface's (or a mode's) partial derivatives `(∂/∂u, ∂/∂v)` at a sample.
 type Tangents = [Vector3<Real>; 2];
 
 impl Samples {
     /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
     /// `window_eyes` the local normalisation's window on the surface ([`neighbours`]);
-    /// `partials` whether to keep the surfaces' partial derivatives ([`Samples::partials`]).
+    /// `partials` which of the surfaces' partial derivatives to keep ([`Samples::partials`],
+    /// [`Samples::expression_partials`]).
     fn new(
         space: &FaceSpace,
         reference: &ReferenceFace,
         expressions: &[Vec<Vector3<Real>>],
         spacing: Real,
         window_eyes: Real,
-        partials: bool,
+        partials: Partials,
     ) -> Result<Self, FaceError> {
         let frame = reference.frame();
         let mut params = Vec::new();
@@ -1003,7 +1014,8 @@ impl Samples {
             .into_iter()
             .map(|n: Vector3<Real>| if n.z < 0.0 { -n } else { n })
             .collect();
-        let (partials, expression_partials) = if partials {
+        let with_expressions = partials == Partials::WithExpressions;
+        let (partials, expression_partials) = if partials != Partials::None {
             // One evaluation of the basis's derivatives per sample serves the base, every mode
             // and every photo's expression.
             let (du, dv) = (
@@ -1029,6 +1041,7 @@ impl Samples {
                 .collect();
             let expression_partials = expressions
                 .par_iter()
+                .filter(|_| with_expressions)
                 .map(|grid| (0..params.len()).map(|s| apply(s, &|c| grid[c])).collect())
                 .collect();
             (partials, expression_partials)
@@ -1344,49 +1357,44 @@ fn fit_lights<N: AsRef<[Vector3<Real>]> + Sync>(
         // The pairs' disagreement is `2 (D − V)` in the lights, `D` block diagonal
         // (`Σₛ (Σᵢ cᵢ Iᵢ²) cⱼ hⱼ hⱼᵀ` per photo `j`, `hᵢ = (1, nᵢₛ)` over photo `i`'s normals)
         // and `V = Σₛ v vᵀ`, `v = (cᵢ Iᵢ hᵢ)ᵢ`; its ratio to `D` is the weighted `sin²` of the
-        // angle between each sample's intensities and its shadings, so the lights maximise `Lᵀ V L / Lᵀ D L`: a generalised eigenproblem. (The
-        // plain smallest eigenvector of `D − V` prefers lights that shade the whole face dark,
-        // `1 − n_z` being nearly zero on a face seen from the front.)
-        // In fixed chunks of samples, each summed in order and the chunks in order: the same
-        // lights whatever the threads.
-        let chunk = n.div_ceil(8).max(1);
-        let parts: Vec<(DMatrix<Real>, DMatrix<Real>)> = (0..n)
-            .collect::<Vec<usize>>()
-            .par_chunks(chunk)
-            .map(|samples| {
-                let mut d = DMatrix::<Real>::zeros(dim, dim);
-                let mut q = DMatrix::<Real>::zeros(dim, dim);
-                let mut v = DVector::<Real>::zeros(dim);
-                for &s in samples {
-                    let seen: Vec<(usize, Real, Real)> = (0..photos)
-                        .filter_map(|i| {
-                            let w = weights[i][s];
-                            (w > 0.0).then(|| raw[i][s].map(|value| (i, w, value)))?
-                        })
-                        .collect();
-                    if seen.len() < 2 {
-                        continue;
-                    }
-                    let squares: Real = seen.iter().map(|&(_, w, value)| w * value * value).sum();
-                    v.fill(0.0);
-                    for &(i, w, value) in &seen {
-                        let h = basis(i, s);
-                        let mut block = d.fixed_view_mut::<4, 4>(4 * i, 4 * i);
-                        block += h * h.transpose() * (squares * w);
-                        v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
-                    }
-                    for &(i, _, _) in &seen {
-                        let vi = v.fixed_rows::<4>(4 * i).into_owned();
-                        for &(j, _, _) in &seen {
-                            let vj = v.fixed_rows::<4>(4 * j).into_owned();
-                            let mut block = q.fixed_view_mut::<4, 4>(4 * i, 4 * j);
-                            block += vi * vj.transpose();
-                        }
+        // angle between each sample's intensities and its shadings, so the lights maximise
+        // `Lᵀ V L / Lᵀ D L`: a generalised eigenproblem. (The plain smallest eigenvector of
+        // `D − V` prefers lights that shade the whole face dark, `1 − n_z` being nearly zero on
+        // a face seen from the front.)
+        // The same lights whatever the threads ([`in_fixed_chunks`]).
+        let parts: Vec<(DMatrix<Real>, DMatrix<Real>)> = in_fixed_chunks(n, |samples| {
+            let mut d = DMatrix::<Real>::zeros(dim, dim);
+            let mut q = DMatrix::<Real>::zeros(dim, dim);
+            let mut v = DVector::<Real>::zeros(dim);
+            for s in samples {
+                let seen: Vec<(usize, Real, Real)> = (0..photos)
+                    .filter_map(|i| {
+                        let w = weights[i][s];
+                        (w > 0.0).then(|| raw[i][s].map(|value| (i, w, value)))?
+                    })
+                    .collect();
+                if seen.len() < 2 {
+                    continue;
+                }
+                let squares: Real = seen.iter().map(|&(_, w, value)| w * value * value).sum();
+                v.fill(0.0);
+                for &(i, w, value) in &seen {
+                    let h = basis(i, s);
+                    let mut block = d.fixed_view_mut::<4, 4>(4 * i, 4 * i);
+                    block += h * h.transpose() * (squares * w);
+                    v.fixed_rows_mut::<4>(4 * i).copy_from(&(h * (w * value)));
+                }
+                for &(i, _, _) in &seen {
+                    let vi = v.fixed_rows::<4>(4 * i).into_owned();
+                    for &(j, _, _) in &seen {
+                        let vj = v.fixed_rows::<4>(4 * j).into_owned();
+                        let mut block = q.fixed_view_mut::<4, 4>(4 * i, 4 * j);
+                        block += vi * vj.transpose();
                     }
                 }
-                (d, q)
-            })
-            .collect();
+            }
+            (d, q)
+        });
         let (mut d, mut q) = (DMatrix::<Real>::zeros(dim, dim), DMatrix::<Real>::zeros(dim, dim));
         for (pd, pq) in parts {
             d += pd;
@@ -1576,6 +1584,17 @@ fn jet<const D: usize>(v: &Seen) -> SVector<Real, D> {
     SVector::from_fn(|r, _| if r < 3 { v.d_point[r] } else { v.d_normal[r - 3] })
 }
 
+/// `f` over `0..n` cut into eight fixed chunks (fewer when `n` is small), the chunks in
+/// parallel, the results in the chunks' order: sums taken in order within each chunk and then
+/// over the results are the same whatever the threads.
+fn in_fixed_chunks<T: Send>(n: usize, f: impl Fn(std::ops::Range<usize>) -> T + Sync) -> Vec<T> {
+    let chunk = n.div_ceil(8).max(1);
+    (0..n.div_ceil(chunk))
+        .into_par_iter()
+        .map(|c| f(c * chunk..((c + 1) * chunk).min(n)))
+        .collect()
+}
+
 /// Cauchy weight of a residual of scale `c`.
 fn cauchy(r: Real, c: Real) -> Real {
     1.0 / (1.0 + (r / c) * (r / c))
@@ -1591,10 +1610,7 @@ impl Level<'_> {
         let placed = self.samples.placed(state);
         let shape = (!self.samples.partials.is_empty()).then(|| self.samples.shape_normals(state, false));
         let normal = |i: usize, s: usize| match &shape {
-            Some(shape) => match shape.photos.get(i) {
-                Some(photo) if self.options.expression_normals => photo[s],
-                _ => shape.identity[s].0,
-            },
+            Some(shape) => shape.photos.get(i).map_or(shape.identity[s].0, |photo| photo[s]),
             None => self.samples.normals[s],
         };
         state
@@ -1779,7 +1795,7 @@ impl Level<'_> {
             identity.into_iter().unzip();
         // Each photo shaded over its own normals (its expression's); the identity's without
         // expressions.
-        let normals: Vec<&[Vector3<Real>]> = if self.options.expression_normals && photos.len() == raw.len() {
+        let normals: Vec<&[Vector3<Real>]> = if photos.len() == raw.len() {
             photos.iter().map(Vec::as_slice).collect()
         } else {
             vec![&normals[..]; raw.len()]
@@ -2158,18 +2174,14 @@ impl Level<'_> {
         let field = k + CAMERA * state.cameras.len();
         let scale = self.options.beta / (self.options.sigma * self.options.sigma);
         let c = 2.0 * self.options.sigma;
-        // Fixed chunks of samples, each summed in order and the chunks summed in order: the
-        // same equations whatever the threads (the outputs are byte-identical across thread
-        // counts).
-        let chunk = self.samples.len().div_ceil(8).max(1);
-        let parts: Vec<(DMatrix<Real>, DVector<Real>, Vec<Real>)> = (0..self.samples.len())
-            .collect::<Vec<usize>>()
-            .par_chunks(chunk)
-            .map(|samples| {
+        // The same equations whatever the threads ([`in_fixed_chunks`]; the outputs are
+        // byte-identical across thread counts).
+        let parts: Vec<(DMatrix<Real>, DVector<Real>, Vec<Real>)> =
+            in_fixed_chunks(self.samples.len(), |samples| {
                 let mut h = DMatrix::<Real>::zeros(n, n);
                 let mut g = DVector::<Real>::zeros(n);
                 let mut costs = Vec::with_capacity(samples.len());
-                for &s in samples {
+                for s in samples {
                     let seen = self.seen(state, &placed, visibility, &normalisation, s, true);
                     if let Some((total, mean)) = agreement(&seen) {
                         costs.push(sample_cost(&seen, mean, c));
@@ -2194,8 +2206,7 @@ impl Level<'_> {
                     }
                 }
                 (h, g, costs)
-            })
-            .collect();
+            });
         let (mut h, mut g) = (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n));
         let mut consistency = 0.0;
         for (ph, pg, costs) in parts {
@@ -2730,7 +2741,11 @@ impl FaceSpace {
                     &problem.expression_grids,
                     spacing,
                     options.window_eyes,
-                    options.window == Window::Lit,
+                    match options.window {
+                        Window::Lit if options.expression_normals => Partials::WithExpressions,
+                        Window::Lit => Partials::Identity,
+                        _ => Partials::None,
+                    },
                 )
             },
         );
@@ -3107,7 +3122,15 @@ mod tests {
         let space = reference
             .face_space()
             .expect("the embedded reference has a face space");
-        let samples = Samples::new(&space, &reference, &[], 12.0, NORMALISATION_EYES, true).unwrap();
+        let samples = Samples::new(
+            &space,
+            &reference,
+            &[],
+            12.0,
+            NORMALISATION_EYES,
+            Partials::WithExpressions,
+        )
+        .unwrap();
         let k = space.mode_count();
         let state = |weights: Vec<Real>| State {
             weights,
@@ -3151,7 +3174,15 @@ mod tests {
             space.surfaces().modes()[3].iter().map(|d| d * sigma).collect(),
             vec![Vector3::zeros(); space.surfaces().modes()[3].len()],
         ];
-        let with = Samples::new(&space, &reference, &expressions, 12.0, NORMALISATION_EYES, true).unwrap();
+        let with = Samples::new(
+            &space,
+            &reference,
+            &expressions,
+            12.0,
+            NORMALISATION_EYES,
+            Partials::WithExpressions,
+        )
+        .unwrap();
         let shaped = with.shape_normals(&state(weights.clone()), true);
         assert_eq!(shaped.photos.len(), 2);
         let mut moved = weights.clone();
