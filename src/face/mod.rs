@@ -40,7 +40,7 @@ use crate::structure::POINT_COUNT;
 pub use outline::OUTLINE_POINTS;
 pub use refine::{
     ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement,
-    TYPICAL_FOCAL, Window,
+    SHIFTED_EXPRESSION_MIN, SHIFTED_EXPRESSIONS_MAX, TYPICAL_FOCAL, Window,
 };
 pub use space::{
     DenseFitOptions, ExpressionPrior, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit,

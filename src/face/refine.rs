@@ -212,6 +212,33 @@ pub struct RefineOptions {
     /// inside, an area ratio beyond 1.5) changed the open jaw's figures by 0.01 and was
     /// dropped. The visibility follows the same normals.
     pub expression_normals: bool,
+    /// `τ_δ`, the prior deviation of an expression shift that the photos share, or `None` to
+    /// hold each photo's expression at the landmark fit's. With it, the expressions the
+    /// landmark fit gave the photos (those whose weight, averaged over the photos, reaches
+    /// [`SHIFTED_EXPRESSION_MIN`]; at most [`SHIFTED_EXPRESSIONS_MAX`] of them, the strongest)
+    /// move with the identity: each by a shift `δₗ` added to every photo's weight, costing
+    /// `δₗ² / τ_δ²`, and held where a photo's weight would leave `[0, 1]`. To the pixels a shift
+    /// the photos share is a change of shape like the identity's; the prior tells them apart (a
+    /// smile's cheeks cost one blendshape's weight, many identity modes' otherwise), and the
+    /// neutral identity is what the reconstruction shows. [`Refinement::expressions`] gives the
+    /// shifted weights.
+    ///
+    /// Off by default: it helps expressive photos and hurts the real scan's neutral ones. Measured
+    /// by `tools/photo_eval` (`--expressions --seeds 2 --counts 3,8 --methods "default,refine
+    /// shift 0.25"`: error on the expressive photos over the error on the neutral ones, 3 / 8
+    /// photos; and `--ict-subjects 0 --methods "default,refine shift 0.25,refine shift 0.5"`: the
+    /// scan's 15 sets, mean ratio to the mean face):
+    ///
+    /// | `τ_δ` | smile | jaw open | the scan | its `photos-8` |
+    /// |---|---|---|---|---|
+    /// | **`None`** | 1.11 / 1.15 | 1.09 / 1.17 | 0.833 | 0.90 |
+    /// | 0.25 | 1.10 / 1.09 | 1.08 / 1.15 | 0.855 | 0.93 |
+    /// | 0.5 | | | 0.861 | 0.95 |
+    ///
+    /// On the scan the shared shift takes up identity shape (the scan's nose and cheeks) that
+    /// the neutral output then drops; the rendered subjects' expressions are the space's own
+    /// blendshapes, which flatters the option.
+    pub expression_shift: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
     /// that helped and on those that did not alike.
@@ -407,6 +434,7 @@ impl Default for RefineOptions {
             full_gain: 0.05,
             photo_weights: false,
             expression_normals: true,
+            expression_shift: None,
             landmark_slack: Real::INFINITY,
             held_out: false,
             min_held_out_gain: 0.0,
@@ -637,6 +665,31 @@ pub struct Look {
 /// Unknowns per photo: rotation (3), log-scale, offset (2), perspective.
 const CAMERA: usize = 7;
 
+/// The expressions [`RefineOptions::expression_shift`] moves: those whose weight, averaged
+/// over the photos, reaches [`SHIFTED_EXPRESSION_MIN`], the strongest
+/// [`SHIFTED_EXPRESSIONS_MAX`] at most, in the modes' order.
+fn shifted_expressions(expressions: &[Vec<Real>]) -> Vec<usize> {
+    let n = expressions.len().max(1) as Real;
+    let modes = expressions.first().map_or(0, Vec::len);
+    let mut strong: Vec<(usize, Real)> = (0..modes)
+        .map(|l| (l, expressions.iter().map(|e| e[l]).sum::<Real>() / n))
+        .filter(|&(_, mean)| mean >= SHIFTED_EXPRESSION_MIN)
+        .collect();
+    strong.sort_by(|a, b| b.1.total_cmp(&a.1));
+    strong.truncate(SHIFTED_EXPRESSIONS_MAX);
+    let mut chosen: Vec<usize> = strong.into_iter().map(|(l, _)| l).collect();
+    chosen.sort_unstable();
+    chosen
+}
+
+/// The smallest weight, averaged over the photos, of an expression that
+/// [`RefineOptions::expression_shift`] moves.
+pub const SHIFTED_EXPRESSION_MIN: Real = 0.05;
+
+/// The most expressions [`RefineOptions::expression_shift`] moves (each costs the
+/// refinement's equations what an identity mode does).
+pub const SHIFTED_EXPRESSIONS_MAX: usize = 12;
+
 /// What [`FaceSpace::refine_photos`] found.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Refinement {
@@ -649,6 +702,9 @@ pub struct Refinement {
     pub displacement: Vec<Vector3<Real>>,
     /// The refined cameras, one per photo (the landmark fit's when not accepted).
     pub cameras: Vec<RefinedCamera>,
+    /// Each photo's expression weights: the landmark fit's, shifted where
+    /// [`RefineOptions::expression_shift`] moved them and the refinement was kept.
+    pub expressions: Vec<Vec<Real>>,
     /// The photos' disagreement (weighted RMS of the normalised intensities about each
     /// sample's mean) on the landmark fit's face and on the refined one, finest level.
     pub disagreement: (Real, Real),
@@ -946,13 +1002,17 @@ type Tangents = [Vector3<Real>; 2];
 
 impl Samples {
     /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
-    /// `window_eyes` the local normalisation's window on the surface ([`neighbours`]);
-    /// `partials` which of the surfaces' partial derivatives to keep ([`Samples::partials`],
+    /// `shifted`: further modes after the identity's, as displacements of every control point
+    /// (the expressions [`RefineOptions::expression_shift`] moves); `window_eyes` the local
+    /// normalisation's window on the surface ([`neighbours`]); `partials` which of the
+    /// surfaces' partial derivatives to keep ([`Samples::partials`],
     /// [`Samples::expression_partials`]).
+    #[allow(clippy::too_many_arguments)]
     fn new(
         space: &FaceSpace,
         reference: &ReferenceFace,
         expressions: &[Vec<Vector3<Real>>],
+        shifted: &[&[Vector3<Real>]],
         spacing: Real,
         window_eyes: Real,
         partials: Partials,
@@ -987,17 +1047,20 @@ impl Samples {
                 cols.iter().copied().zip(vals.iter().copied()).collect()
             })
             .collect();
+        let at = |row: &[(usize, Real)], grid: &[Vector3<Real>]| -> Vector3<Real> {
+            row.iter().map(|&(c, b)| grid[c] * b).sum()
+        };
         let modes = (0..params.len())
-            .map(|s| sampled.modes.iter().map(|m| m[s]).collect())
+            .map(|s| {
+                let identity = sampled.modes.iter().map(|m| m[s]);
+                identity
+                    .chain(shifted.iter().map(|grid| at(&basis[s], grid)))
+                    .collect()
+            })
             .collect();
         let expression = expressions
             .iter()
-            .map(|grid| {
-                basis
-                    .iter()
-                    .map(|row| row.iter().map(|&(c, b)| grid[c] * b).sum())
-                    .collect()
-            })
+            .map(|grid| basis.iter().map(|row| at(row, grid)).collect())
             .collect();
         let base_surface = surfaces.base();
         let normals = params
@@ -1035,7 +1098,12 @@ impl Samples {
                 .into_par_iter()
                 .map(|s| {
                     let base = apply(s, &|c| base_points[c].coords);
-                    let mode_tangents = modes.iter().map(|m| apply(s, &|c| m[c])).collect();
+                    let mode_tangents = modes
+                        .iter()
+                        .map(Vec::as_slice)
+                        .chain(shifted.iter().copied())
+                        .map(|m| apply(s, &|c| m[c]))
+                        .collect();
                     (base, mode_tangents)
                 })
                 .collect();
@@ -1547,7 +1615,10 @@ struct Level<'a> {
     images: Vec<LevelImage>,
     samples: Samples,
     landmarks: &'a Landmarks<'a>,
+    /// Each weight's prior deviation ([`Problem::sigma_prior`]).
     sigma_prior: &'a [Real],
+    /// The range of each weight after the identity's ([`Problem::shift_limits`]).
+    shift_limits: &'a [(Real, Real)],
     /// Each photo's `κ` prior centre ([`Problem::perspective_prior`]).
     perspective_prior: &'a [Real],
     options: &'a RefineOptions,
@@ -2549,9 +2620,22 @@ impl FaceSpace {
             .iter()
             .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
             .collect();
+        let identity = self.sigma().len();
+        let mut expressions = fit.expressions.clone();
+        for e in expressions
+            .iter_mut()
+            .filter(|e| !problem.shifted.is_empty() && e.len() == self.expressions().len())
+        {
+            for (&l, shift) in problem.shifted.iter().zip(&kept.weights[identity..]) {
+                e[l] = (e[l] + shift).clamp(0.0, 1.0);
+            }
+        }
+        let mut weights = kept.weights;
+        weights.truncate(identity);
         Ok(Refinement {
             displacement: kept.field.iter().map(|&d| Vector3::new(0.0, 0.0, d)).collect(),
-            weights: kept.weights,
+            weights,
+            expressions,
             cameras: kept.cameras,
             disagreement,
             landmark_rms,
@@ -2618,7 +2702,14 @@ impl FaceSpace {
 /// What every level of a refinement shares: the starting state, the landmarks' problem, each
 /// photo's expression as a displacement of the control grid, and the photos' face boxes.
 struct Problem<'a> {
+    /// The weights after the identity's are the shifts of the expressions [`Problem::shifted`].
     start: State,
+    /// The expression modes whose shift the photos share ([`RefineOptions::expression_shift`]).
+    shifted: Vec<usize>,
+    /// Each weight's prior deviation: the identity's, then each shift's `τ_δ`.
+    sigma_prior: Vec<Real>,
+    /// Each shift's range: where no photo's weight leaves `[0, 1]`.
+    shift_limits: Vec<(Real, Real)>,
     /// Each photo's `κ` prior centre: its starting camera with [`TYPICAL_FOCAL`].
     perspective_prior: Vec<Real>,
     landmarks: Landmarks<'a>,
@@ -2635,8 +2726,47 @@ impl FaceSpace {
         point_weights: &'a [Real; POINT_COUNT],
         options: &RefineOptions,
     ) -> Problem<'a> {
+        // Each photo's expression (held at the landmark fit's, or shifted by the photos'
+        // shared shift) as displacements of the control grid and of the structure; none when
+        // the fit had no expressions.
+        let expressions: &[Vec<Real>] = if fit
+            .expressions
+            .iter()
+            .all(|e| e.len() == self.expressions().len())
+        {
+            &fit.expressions
+        } else {
+            &[]
+        };
+        let shifted = match options.expression_shift {
+            Some(_) if !expressions.is_empty() => shifted_expressions(expressions),
+            _ => Vec::new(),
+        };
+        let shift_limits = shifted
+            .iter()
+            .map(|&l| {
+                let (low, high) = expressions
+                    .iter()
+                    .fold((Real::INFINITY, Real::NEG_INFINITY), |(lo, hi), e| {
+                        (lo.min(e[l]), hi.max(e[l]))
+                    });
+                (-low, 1.0 - high)
+            })
+            .collect();
+        let tau = options.expression_shift.unwrap_or(1.0);
+        let sigma_prior = self
+            .sigma()
+            .iter()
+            .copied()
+            .chain(shifted.iter().map(|_| tau))
+            .collect();
         let start = State {
-            weights: fit.weights.clone(),
+            weights: fit
+                .weights
+                .iter()
+                .copied()
+                .chain(shifted.iter().map(|_| 0.0))
+                .collect(),
             cameras: fit
                 .poses
                 .iter()
@@ -2659,17 +2789,6 @@ impl FaceSpace {
                 Vec::new()
             },
         };
-        // Each photo's expression (held at the landmark fit's) as displacements of the control
-        // grid and of the structure; none when the fit had no expressions.
-        let expressions: &[Vec<Real>] = if fit
-            .expressions
-            .iter()
-            .all(|e| e.len() == self.expressions().len())
-        {
-            &fit.expressions
-        } else {
-            &[]
-        };
         let displacement = |modes: &[Vec<Vector3<Real>>], len: usize| -> Vec<Vec<Vector3<Real>>> {
             expressions
                 .iter()
@@ -2686,7 +2805,11 @@ impl FaceSpace {
         let landmarks = Landmarks {
             base: structure.base.clone(),
             modes: (0..POINT_COUNT)
-                .map(|j| structure.modes.iter().map(|m| m[j]).collect())
+                .map(|j| {
+                    let identity = structure.modes.iter().map(|m| m[j]);
+                    let shifts = shifted.iter().map(|&l| self.expressions().structure[l][j]);
+                    identity.chain(shifts).collect()
+                })
                 .collect(),
             expression: displacement(&self.expressions().structure, POINT_COUNT),
             views,
@@ -2696,6 +2819,9 @@ impl FaceSpace {
         Problem {
             perspective_prior: start.cameras.iter().map(|c| c.perspective).collect(),
             start,
+            shifted,
+            sigma_prior,
+            shift_limits,
             landmarks,
             expression_grids,
             boxes: face_boxes(views),
@@ -2735,10 +2861,16 @@ impl FaceSpace {
                     .collect()
             },
             || {
+                let shifted: Vec<&[Vector3<Real>]> = problem
+                    .shifted
+                    .iter()
+                    .map(|&l| self.expressions().grid[l].as_slice())
+                    .collect();
                 Samples::new(
                     self,
                     reference,
                     &problem.expression_grids,
+                    &shifted,
                     spacing,
                     options.window_eyes,
                     match options.window {
@@ -2754,7 +2886,8 @@ impl FaceSpace {
             images,
             samples,
             landmarks: &problem.landmarks,
-            sigma_prior: self.sigma(),
+            sigma_prior: &problem.sigma_prior,
+            shift_limits: &problem.shift_limits,
             perspective_prior: &problem.perspective_prior,
             options,
             grid: (self.surfaces().base().rows(), self.surfaces().base().cols()),
@@ -2888,7 +3021,11 @@ impl Level<'_> {
                     continue;
                 };
                 let step = -chol.solve(&g);
-                let next = state.moved(&step);
+                let mut next = state.moved(&step);
+                let identity = next.weights.len() - self.shift_limits.len();
+                for (w, &(low, high)) in next.weights[identity..].iter_mut().zip(self.shift_limits) {
+                    *w = w.clamp(low, high);
+                }
                 let next_cost = self.cost(&next, &visibility);
                 if next_cost.is_finite() && next_cost < cost {
                     let relative = (cost - next_cost) / cost.max(1e-12);
@@ -3126,6 +3263,7 @@ mod tests {
             &space,
             &reference,
             &[],
+            &[],
             12.0,
             NORMALISATION_EYES,
             Partials::WithExpressions,
@@ -3178,6 +3316,7 @@ mod tests {
             &space,
             &reference,
             &expressions,
+            &[],
             12.0,
             NORMALISATION_EYES,
             Partials::WithExpressions,
@@ -3197,6 +3336,48 @@ mod tests {
             (0..samples.len()).any(|s| (expected[s].0 - normals[s].0).norm() > 1e-3),
             "the expression turns some normals"
         );
+
+        // A shifted mode that is mode 3's displacement: a weight on it moves the samples and
+        // their normals as the same weight on mode 3 does.
+        let shifted = Samples::new(
+            &space,
+            &reference,
+            &[],
+            &[&space.surfaces().modes()[3]],
+            12.0,
+            NORMALISATION_EYES,
+            Partials::Identity,
+        )
+        .unwrap();
+        let mut extended = weights.clone();
+        extended.push(sigma);
+        let mut moved = weights.clone();
+        moved[3] += sigma;
+        let (a, b) = (
+            shifted.placed(&state(extended.clone())),
+            samples.placed(&state(moved.clone())),
+        );
+        let (na, nb) = (
+            shifted.shape_normals(&state(extended), true).identity,
+            samples.shape_normals(&state(moved), true).identity,
+        );
+        for s in 0..samples.len() {
+            assert!((a[s].0 - b[s].0).norm() < 1e-9);
+            assert!((na[s].0 - nb[s].0).norm() < 1e-9);
+            assert!((na[s].1[k] - nb[s].1[3]).norm() < 1e-9);
+        }
+    }
+
+    /// The shifted expressions are those strong enough on average, the strongest first when
+    /// there are too many, returned in the modes' order.
+    #[test]
+    fn shifted_expressions_are_the_strong_ones() {
+        let photos = [vec![0.0, 0.2, 0.04, 0.5], vec![0.0, 0.0, 0.08, 0.7]];
+        assert_eq!(shifted_expressions(&photos), vec![1, 2, 3]);
+        let many: Vec<Vec<Real>> = vec![(0..20).map(|l| 0.1 + l as Real * 0.01).collect()];
+        let chosen = shifted_expressions(&many);
+        assert_eq!(chosen, (20 - SHIFTED_EXPRESSIONS_MAX..20).collect::<Vec<_>>());
+        assert!(shifted_expressions(&[]).is_empty());
     }
 
     /// The folds deal the photos out in order of yaw: every fold holds out photos from both

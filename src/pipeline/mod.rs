@@ -814,6 +814,7 @@ fn space_face(
         let refined = space.refine_photos(reference, &fit, &dense, &weights, &refine)?;
         if refined.accepted {
             fit.weights = refined.weights.clone();
+            fit.expressions = refined.expressions.clone();
         }
         timings.push(("refinement".to_owned(), start.elapsed().as_secs_f64()));
         refinement = Some(refined);

@@ -1558,6 +1558,20 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
+            "refine shift 0.25",
+            refined(RefineOptions {
+                expression_shift: Some(0.25),
+                ..RefineOptions::default()
+            }),
+        ),
+        method(
+            "refine shift 0.5",
+            refined(RefineOptions {
+                expression_shift: Some(0.5),
+                ..RefineOptions::default()
+            }),
+        ),
+        method(
             "refine photo weights",
             refined(RefineOptions {
                 photo_weights: true,
