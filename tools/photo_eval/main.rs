@@ -30,8 +30,8 @@ use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{InnerFaceOptions, InnerFaceScore, inner_face_score};
 use splineface::face::{
-    Deformation, ExpressionPrior, MeanFace, MeshOptions, PhotoSpaceFit, RefineOptions, RefineView, Units,
-    Window,
+    Deformation, DenseFitOptions, ExpressionPrior, MeanFace, MeshOptions, PhotoSpaceFit, RefineOptions,
+    RefineView, Units, Window,
 };
 use splineface::landmarker::ShapePredictor;
 use splineface::mesh::TriangleMesh;
@@ -302,16 +302,21 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
-/// `--from-truth`: for every set of an ICT subject and each of several normalisation
+/// `--from-truth`: for every set and each of several normalisation
 /// windows, the default refinement (kept whole) on the landmark fit's photos and cameras:
 /// the landmark fit's face and the subject's true one (the face space cut to
-/// `--space-modes`; with 60 the truth lies in it exactly) with only their cameras refined
+/// `--space-modes`; with 60 the truth lies in it exactly; for the scan, the space fitted
+/// densely to it, its ceiling) with only their cameras refined
 /// (`RefineOptions::hold_face`), the refinement from the landmark fit's weights (as the
 /// pipeline runs it), from the true weights, and from the true weights with the landmarks
 /// all but ignored (ε = 1000). Each face scored as the pipeline's are, with the photos'
 /// disagreement at the end. When the truth leaves the photos disagreeing more than the
 /// refined face, the photos' agreement is best away from the face (the objective, not the
 /// search, is at fault). Writes `from-truth.md`.
+/// The landmark noise (mm per coordinate) of the structure fit that starts the scan's dense
+/// fit in `--from-truth` (as `tools/face_space.rs`'s landmark fit).
+const DENSE_START_NOISE: Real = 4.0;
+
 fn from_truth(
     sets: &[Set<'_>],
     subjects: &[Subject],
@@ -327,7 +332,7 @@ fn from_truth(
         refine: None,
         ..PipelineOptions::default()
     };
-    // (key for `--windows`, title, window, its size in eye distances, β)
+    // (key for `--windows`, title, window, its size in eye distances, β, the field)
     let beta = RefineOptions::default().beta;
     let all = [
         (
@@ -336,6 +341,7 @@ fn from_truth(
             Window::Image,
             0.12,
             beta,
+            false,
         ),
         (
             "image-0.25",
@@ -343,6 +349,7 @@ fn from_truth(
             Window::Image,
             0.25,
             beta,
+            false,
         ),
         (
             "image-0.5",
@@ -350,6 +357,7 @@ fn from_truth(
             Window::Image,
             0.5,
             beta,
+            false,
         ),
         (
             "surface",
@@ -357,6 +365,7 @@ fn from_truth(
             Window::Surface,
             0.12,
             beta,
+            false,
         ),
         (
             "shaded",
@@ -364,6 +373,7 @@ fn from_truth(
             Window::Shaded,
             0.12,
             beta,
+            false,
         ),
         (
             "lit",
@@ -371,6 +381,7 @@ fn from_truth(
             Window::Lit,
             0.12,
             beta,
+            false,
         ),
         (
             "lit-0.1",
@@ -378,6 +389,7 @@ fn from_truth(
             Window::Lit,
             0.12,
             0.1,
+            false,
         ),
         (
             "lit-0.3",
@@ -385,6 +397,17 @@ fn from_truth(
             Window::Lit,
             0.12,
             0.3,
+            false,
+        ),
+        (
+            "lit-field",
+            format!(
+                "none: the photos compared with the face lit, β = {beta}, with the displacement field (`RefineOptions::field`)"
+            ),
+            Window::Lit,
+            0.12,
+            beta,
+            true,
         ),
     ];
     if let Some(unknown) = args
@@ -397,17 +420,19 @@ fn from_truth(
             all.iter().map(|a| a.0).collect::<Vec<_>>().join(", ")
         );
     }
-    let windows: Vec<(&str, Window, Real, Real)> = all
+    let windows: Vec<(&str, Window, Real, Real, bool)> = all
         .iter()
         .filter(|a| args.windows.is_empty() || args.windows.iter().any(|w| w == a.0))
-        .map(|(_, title, window, eyes, beta)| (title.as_str(), *window, *eyes, *beta))
+        .map(|(_, title, window, eyes, beta, field)| (title.as_str(), *window, *eyes, *beta, *field))
         .collect();
     let units = landmark_only.units;
     let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
     let mut page = format!(
         "# The refinement started from the truth\n\nMade by `{}`. The face space: the first {} identity modes. \
          Ratios to the mean face's error, and in brackets the photos' disagreement: for the \
-         landmark fit and the truth with the cameras alone refined (`RefineOptions::hold_face`), for the refinements at their end (kept whole).\n",
+         landmark fit and the truth with the cameras alone refined (`RefineOptions::hold_face`), for the refinements at their end (kept whole). \
+         The scan's truth in the space is the space fitted densely to it (`FaceSpace::fit_surface`, \
+         its ceiling).\n",
         command_line(),
         space.mode_count()
     );
@@ -418,15 +443,9 @@ fn from_truth(
     // The landmark fit, its views and the window-free scores once per set; the refinements
     // per window.
     let mut rows: Vec<String> = vec![String::new(); windows.len()];
+    let mut dense: HashMap<usize, Vec<Real>> = HashMap::new();
     for set in sets {
         let subject = &subjects[set.subject];
-        let Some(index) = subject
-            .name
-            .strip_prefix("ict-")
-            .and_then(|i| i.parse::<usize>().ok())
-        else {
-            continue;
-        };
         let (inputs, _) = set_inputs(set, landmarks)?;
         let Ok(result) = reconstruct(&inputs, &chosen, &landmark_only, |_| {}) else {
             continue;
@@ -464,8 +483,12 @@ fn from_truth(
             })
             .collect();
         let baseline = baselines[set.subject].distance.mean;
-        let scored = |w: &[Real]| -> Result<Real> {
-            let face = space.face(&chosen, w)?;
+        // A face of the space, displaced by a refinement's field (when it has one).
+        let scored_displaced = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| -> Result<Real> {
+            let mut face = space.face(&chosen, w)?;
+            if !displacement.is_empty() {
+                face = face.displaced(displacement)?;
+            }
             let mesh = face
                 .mesh(&landmark_only.mesh)?
                 .mesh
@@ -477,18 +500,45 @@ fn from_truth(
                 .collect();
             Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
         };
-        let truth: Vec<Real> = subjects::ict_weights(ict, index, ICT_SEED)[..space.mode_count()].to_vec();
+        let scored = |w: &[Real]| scored_displaced(w, &[]);
+        // An ICT subject's truth lies in the space; the scan's stand-in is the space fitted
+        // densely to it (its ceiling, `tools/face_space.rs`), once per subject.
+        let truth: Vec<Real> = match subject
+            .name
+            .strip_prefix("ict-")
+            .and_then(|i| i.parse::<usize>().ok())
+        {
+            Some(index) => subjects::ict_weights(ict, index, ICT_SEED)[..space.mode_count()].to_vec(),
+            None => match dense.get(&set.subject) {
+                Some(w) => w.clone(),
+                None => {
+                    let start = space.fit_structure(
+                        &subject.structure,
+                        &splineface::structure::contour_weighted(1.0),
+                        DENSE_START_NOISE,
+                    )?;
+                    let fitted =
+                        space.fit_surface(&chosen, &subject.truth, &start, &DenseFitOptions::default())?;
+                    dense.insert(set.subject, fitted.weights.clone());
+                    fitted.weights
+                }
+            },
+        };
+        // The subjects are neutral here: the truth wears no expression (the landmark fit's
+        // spurious ones would move its nose and mouth off the photos').
         let truth_fit = PhotoSpaceFit {
             weights: truth.clone(),
+            expressions: fit.expressions.iter().map(|e| vec![0.0; e.len()]).collect(),
             ..fit.clone()
         };
         let (fit_score, truth_score) = (scored(&fit.weights)?, scored(&truth)?);
-        for ((_, window, window_eyes, beta), rows) in windows.iter().zip(&mut rows) {
+        for ((_, window, window_eyes, beta, field), rows) in windows.iter().zip(&mut rows) {
             let refine = RefineOptions {
                 min_gain: Real::NEG_INFINITY,
                 window: *window,
                 window_eyes: *window_eyes,
                 beta: *beta,
+                field: *field,
                 ..RefineOptions::default()
             };
             let loose = RefineOptions {
@@ -512,20 +562,20 @@ fn from_truth(
                 set.label,
                 fit_score,
                 fit_cameras.disagreement.1,
-                scored(&from_fit.weights)?,
+                scored_displaced(&from_fit.weights, &from_fit.displacement)?,
                 from_fit.disagreement.1,
                 truth_score,
                 truth_cameras.disagreement.1,
-                scored(&from_truth.weights)?,
+                scored_displaced(&from_truth.weights, &from_truth.displacement)?,
                 from_truth.disagreement.1,
-                scored(&photos_only.weights)?,
+                scored_displaced(&photos_only.weights, &photos_only.displacement)?,
                 photos_only.disagreement.1,
             );
             eprint!("{row}");
             rows.push_str(&row);
         }
     }
-    for ((window_name, _, _, _), rows) in windows.iter().zip(&rows) {
+    for ((window_name, _, _, _, _), rows) in windows.iter().zip(&rows) {
         page.push_str(&format!("\n## The window {window_name}\n\n{header}{rows}"));
     }
     std::fs::write(args.out.join("from-truth.md"), page)?;
