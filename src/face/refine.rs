@@ -155,9 +155,10 @@ pub struct RefineOptions {
     /// 0.69 (0.769 against 0.754 over every set; better on 21 sets, worse on 40, the worst
     /// 1.57× against 1.35×), 12 sets more than 2% worse than the landmark fit as the default
     /// has; on `lps-head` it changed only photos-3 (0.79× against 0.81×). Measured with the
-    /// window in the image; with the lit measure its Jacobian leaves out how the field bends
-    /// the normals (the cost is exact), and on the test's bump it took 25% off the bump's
-    /// error, against 40% or more with the window (`tests/splineface/refine.rs`).
+    /// window in the image. With the lit measure the field moves the sampled points alone: its
+    /// lift is left out of the normals that shade the face, in the cost and the Jacobian alike
+    /// (`Samples::shape_normals`); on the test's bump it took 25% off the bump's error,
+    /// against 40% or more with the window (`tests/splineface/refine.rs`).
     ///
     /// Under the lit measure (`cargo run --release --example photo_eval -- --methods
     /// "default,refine field"`, 105 scored sets, the same run): 0.80 / 0.72 / 0.70 / 0.67 /
@@ -2634,11 +2635,10 @@ impl FaceSpace {
             .map(|v| v.iter().filter(|&&c| c > 0.0).count() as Real / v.len().max(1) as Real)
             .collect();
         let identity = self.sigma().len();
+        // The shifts (none unless every photo has the space's expressions), clamped against
+        // rounding: their limits keep each weight in [0, 1].
         let mut expressions = fit.expressions.clone();
-        for e in expressions
-            .iter_mut()
-            .filter(|e| !problem.shifted.is_empty() && e.len() == self.expressions().len())
-        {
+        for e in &mut expressions {
             for (&l, shift) in problem.shifted.iter().zip(&kept.weights[identity..]) {
                 e[l] = (e[l] + shift).clamp(0.0, 1.0);
             }

@@ -302,6 +302,10 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
+/// The landmark noise (mm per coordinate) of the structure fit that starts the scan's dense
+/// fit in `--from-truth` (as `tools/face_space.rs`'s landmark fit).
+const DENSE_START_NOISE: Real = 4.0;
+
 /// `--from-truth`: for every set and each of several normalisation
 /// windows, the default refinement (kept whole) on the landmark fit's photos and cameras:
 /// the landmark fit's face and the subject's true one (the face space cut to
@@ -313,10 +317,6 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
 /// disagreement at the end. When the truth leaves the photos disagreeing more than the
 /// refined face, the photos' agreement is best away from the face (the objective, not the
 /// search, is at fault). Writes `from-truth.md`.
-/// The landmark noise (mm per coordinate) of the structure fit that starts the scan's dense
-/// fit in `--from-truth` (as `tools/face_space.rs`'s landmark fit).
-const DENSE_START_NOISE: Real = 4.0;
-
 fn from_truth(
     sets: &[Set<'_>],
     subjects: &[Subject],
