@@ -103,6 +103,17 @@ fn bench(c: &mut Criterion) {
                 .unwrap()
         })
     });
+    let field = RefineOptions {
+        field: true,
+        ..RefineOptions::default()
+    };
+    group.bench_function("refine_photos (with the displacement field)", |b| {
+        b.iter(|| {
+            space
+                .refine_photos(&reference, black_box(&fit), &refine_views, &weights, &field)
+                .unwrap()
+        })
+    });
     group.finish();
 }
 

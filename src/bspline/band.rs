@@ -59,6 +59,36 @@ impl SymmetricBand {
         }
     }
 
+    /// Its order `n`.
+    pub(crate) fn order(&self) -> usize {
+        self.n
+    }
+
+    /// Entry `(i, j)` (zero outside the band).
+    #[cfg(test)]
+    pub(crate) fn get(&self, i: usize, j: usize) -> Real {
+        let (i, j) = if i >= j { (i, j) } else { (j, i) };
+        if i - j > self.k {
+            0.0
+        } else {
+            self.data[self.index(i, j)]
+        }
+    }
+
+    /// Makes row and column `i` those of the identity.
+    pub(crate) fn hold(&mut self, i: usize) {
+        for j in i.saturating_sub(self.k)..i {
+            let idx = self.index(i, j);
+            self.data[idx] = 0.0;
+        }
+        for r in i + 1..(i + self.k + 1).min(self.n) {
+            let idx = self.index(r, i);
+            self.data[idx] = 0.0;
+        }
+        let idx = self.index(i, i);
+        self.data[idx] = 1.0;
+    }
+
     /// Factorises in place into `L` with `A = L·Lᵀ`.
     ///
     /// Fails with the index of the first row whose pivot is not safely positive: its remaining
@@ -184,6 +214,32 @@ mod tests {
             band.add(i, i, d);
         }
         (dense, band)
+    }
+
+    #[test]
+    fn held_rows_match_dense() {
+        for &(n, k) in &[(1, 0), (7, 2), (40, 7), (30, 29)] {
+            let (mut dense, mut band) = random_spd(n, k, 5 * n as u64 + k as u64);
+            for i in 0..n {
+                for j in 0..n {
+                    assert_eq!(band.get(i, j), dense[(i, j)], "n={n} k={k} ({i}, {j})");
+                }
+            }
+            // Hold the middle row: the identity's row and column.
+            let held = n / 2;
+            band.hold(held);
+            dense.row_mut(held).fill(0.0);
+            dense.column_mut(held).fill(0.0);
+            dense[(held, held)] = 1.0;
+            assert_eq!(band.order(), n);
+            let rhs: Vec<Real> = (0..n).map(|i| (i as Real * 0.37).sin()).collect();
+            let mut x: Vec<[Real; 1]> = rhs.iter().map(|&r| [r]).collect();
+            band.cholesky().expect("SPD").solve_in_place(&mut x);
+            let expected = dense.cholesky().unwrap().solve(&nalgebra::DVector::from_vec(rhs));
+            for i in 0..n {
+                assert!((x[i][0] - expected[i]).abs() < 1e-10, "n={n} k={k} i={i}");
+            }
+        }
     }
 
     #[test]

@@ -37,7 +37,7 @@ macro_rules! with_widths {
     };
 }
 
-mod band;
+pub(crate) mod band;
 mod basis;
 mod curvature;
 mod curve;

@@ -91,6 +91,9 @@ use crate::Real;
 use crate::align::GreyImage;
 use crate::reference::ReferenceFace;
 use crate::structure::POINT_COUNT;
+use equations::Equations;
+
+mod equations;
 
 /// The local normalisation's window (Gaussian deviation), in eye distances.
 pub const NORMALISATION_EYES: Real = 0.12;
@@ -1658,10 +1661,10 @@ fn agreement(seen: &[Seen]) -> Option<(Real, Real)> {
     Some((total, mean))
 }
 
-/// What [`Level::add_sample`] takes besides the modes: the field's first column, the sample's
-/// field basis values, the views that see it, their summed weight and weighted mean
-/// ([`agreement`]), and the residuals' scale `β / σ²` with the Cauchy loss's parameter.
-type SampleTerms<'a> = (usize, &'a [(usize, Real)], &'a [Seen], (Real, Real), (Real, Real));
+/// What [`Level::add_sample`] takes besides the modes: the sample's field basis values, the
+/// views that see it, their summed weight and weighted mean ([`agreement`]), and the
+/// residuals' scale `β / σ²` with the Cauchy loss's parameter.
+type SampleTerms<'a> = (&'a [(usize, Real)], &'a [Seen], (Real, Real), (Real, Real));
 
 /// A view's derivative in the sample's `D` geometric unknowns: `∂N/∂X` (`D = 3`), then
 /// `∂N/∂n` (`D = 6`, [`Window::Lit`]).
@@ -2113,8 +2116,8 @@ impl Level<'_> {
         out
     }
 
-    /// Adds one sample's consistency residuals to the normal equations' upper triangle `h`
-    /// and gradient `g`. `(total, mean)` are the seeing views' summed weight and weighted mean
+    /// Adds one sample's consistency residuals to the normal equations (the dense block's
+    /// upper triangle, the cross and field blocks, the gradient). `(total, mean)` are the seeing views' summed weight and weighted mean
     /// ([`agreement`]); `(scale, c)` the residuals' scale `β / σ²` and the Cauchy loss's
     /// parameter.
     ///
@@ -2140,15 +2143,16 @@ impl Level<'_> {
     ///
     /// `modes` are the sample's `k` mode displacements (the identity's columns come first),
     /// each with its normal's derivative below it for [`Window::Lit`] (`D = 6`; the views'
-    /// `qₐ` then stack `∂N/∂X` and `∂N/∂n`, [`jet`], and `A` is `6 × 6`); `field` the first
-    /// of the field's columns, `basis` the sample's field basis values (empty without a
-    /// field), the field moving the point alone.
+    /// `qₐ` then stack `∂N/∂X` and `∂N/∂n`, [`jet`], and `A` is `6 × 6`); `basis` the
+    /// sample's field basis values (empty without a field), the field moving the point alone.
     fn add_sample<const D: usize>(
         modes: &[SVector<Real, D>],
-        (field, basis, seen, (total, mean), (scale, c)): SampleTerms<'_>,
-        (h, g): (&mut DMatrix<Real>, &mut DVector<Real>),
+        (basis, seen, (total, mean), (scale, c)): SampleTerms<'_>,
+        equations: &mut Equations,
     ) {
-        let n = h.nrows();
+        let n = equations.dense();
+        let field = n;
+        let Equations { a: h, cross, band, g } = equations;
         let k = modes.len();
         let mean_point: SVector<Real, D> = seen.iter().map(|v| jet::<D>(v) * (v.weight / total)).sum();
         // Per view: its share, its weight ρ, its residual and its point Jacobian about the mean.
@@ -2192,15 +2196,14 @@ impl Level<'_> {
         // Identity × field, field × field, and the field's gradient.
         let az = a.column(2).into_owned();
         for (e, &(cp, value)) in basis.iter().enumerate() {
-            let column = field + cp;
-            for (i, mi) in modes.iter().enumerate() {
-                hs[column * n + i] += mi.dot(&az) * value;
+            let row = &mut cross[cp * n..cp * n + k];
+            for (entry, mi) in row.iter_mut().zip(modes) {
+                *entry += mi.dot(&az) * value;
             }
             for &(other, other_value) in &basis[..=e] {
-                let (lo, hi) = ((field + other).min(column), (field + other).max(column));
-                hs[hi * n + lo] += a[(2, 2)] * value * other_value;
+                band.add(cp, other, a[(2, 2)] * value * other_value);
             }
-            g[column] += b[2] * value;
+            g[field + cp] += b[2] * value;
         }
         for (x, (view, &(share_b, rho_b, r_b, q_b))) in seen.iter().zip(&views).enumerate() {
             let base = k + CAMERA * view.photo;
@@ -2229,11 +2232,11 @@ impl Level<'_> {
                 }
             }
             // This camera × the field.
-            let cross = rho_b * q_b[2] - share_b * u[2];
+            let cross_coefficient = rho_b * q_b[2] - share_b * u[2];
             for &(cp, value) in basis {
-                let column = &mut hs[(field + cp) * n..(field + cp + 1) * n];
-                for (t, d) in camera.iter().enumerate() {
-                    column[base + t] += cross * d * value;
+                let row = &mut cross[cp * n + base..cp * n + base + CAMERA];
+                for (entry, d) in row.iter_mut().zip(camera) {
+                    *entry += cross_coefficient * d * value;
                 }
             }
             let gradient = rho_b * r_b - share_b * residual_sum;
@@ -2247,74 +2250,67 @@ impl Level<'_> {
     /// half-gradient) and the cost there: the cost is
     /// [`Level::cost`]'s to the bit (the same per-sample terms from the same views, summed in
     /// the samples' order), taken in the same pass over the samples as the equations.
-    fn normal_equations(
-        &self,
-        state: &State,
-        visibility: &[Vec<Real>],
-    ) -> (DMatrix<Real>, DVector<Real>, Real) {
+    fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (Equations, Real) {
         let placed = self.samples.placed(state);
         let normalisation = self.normalisers(state, &placed, visibility);
         let k = state.weights.len();
         let n = state.unknowns();
         let field = k + CAMERA * state.cameras.len();
+        let bandwidth = self.field_bandwidth(state);
+        let zeros = || Equations::zeros(field, n - field, bandwidth);
         let scale = self.options.beta / (self.options.sigma * self.options.sigma);
         let c = 2.0 * self.options.sigma;
         // The same equations whatever the threads ([`in_fixed_chunks`]; the outputs are
         // byte-identical across thread counts).
-        let parts: Vec<(DMatrix<Real>, DVector<Real>, Vec<Real>)> =
-            in_fixed_chunks(self.samples.len(), |samples| {
-                let mut h = DMatrix::<Real>::zeros(n, n);
-                let mut g = DVector::<Real>::zeros(n);
-                let mut costs = Vec::with_capacity(samples.len());
-                for s in samples {
-                    let seen = self.seen(state, &placed, visibility, &normalisation, s, true);
-                    if let Some((total, mean)) = agreement(&seen) {
-                        costs.push(sample_cost(&seen, mean, c));
-                        let basis: &[(usize, Real)] = if state.field.is_empty() {
-                            &[]
-                        } else {
-                            &self.samples.basis[s]
-                        };
-                        let terms = (field, basis, &seen[..], (total, mean), (scale, c));
-                        match normalisation.normal_modes.get(s) {
-                            // The modes move the sample's normal too ([`Window::Lit`]).
-                            Some(normal_modes) => {
-                                let modes: Vec<SVector<Real, 6>> = self.samples.modes[s]
-                                    .iter()
-                                    .zip(normal_modes)
-                                    .map(|(m, t)| SVector::<Real, 6>::new(m.x, m.y, m.z, t.x, t.y, t.z))
-                                    .collect();
-                                Self::add_sample(&modes, terms, (&mut h, &mut g));
-                            }
-                            None => Self::add_sample(&self.samples.modes[s], terms, (&mut h, &mut g)),
+        let parts: Vec<(Equations, Vec<Real>)> = in_fixed_chunks(self.samples.len(), |samples| {
+            let mut equations = zeros();
+            let mut costs = Vec::with_capacity(samples.len());
+            for s in samples {
+                let seen = self.seen(state, &placed, visibility, &normalisation, s, true);
+                if let Some((total, mean)) = agreement(&seen) {
+                    costs.push(sample_cost(&seen, mean, c));
+                    let basis: &[(usize, Real)] = if state.field.is_empty() {
+                        &[]
+                    } else {
+                        &self.samples.basis[s]
+                    };
+                    let terms = (basis, &seen[..], (total, mean), (scale, c));
+                    match normalisation.normal_modes.get(s) {
+                        // The modes move the sample's normal too ([`Window::Lit`]).
+                        Some(normal_modes) => {
+                            let modes: Vec<SVector<Real, 6>> = self.samples.modes[s]
+                                .iter()
+                                .zip(normal_modes)
+                                .map(|(m, t)| SVector::<Real, 6>::new(m.x, m.y, m.z, t.x, t.y, t.z))
+                                .collect();
+                            Self::add_sample(&modes, terms, &mut equations);
                         }
+                        None => Self::add_sample(&self.samples.modes[s], terms, &mut equations),
                     }
                 }
-                (h, g, costs)
-            });
-        let (mut h, mut g) = (DMatrix::<Real>::zeros(n, n), DVector::<Real>::zeros(n));
+            }
+            (equations, costs)
+        });
+        let mut equations = zeros();
         let mut consistency = 0.0;
-        for (ph, pg, costs) in parts {
-            h += ph;
-            g += pg;
+        for (part, costs) in parts {
+            equations.add(&part);
             // One running sum in the samples' order, as `consistency_cost` sums.
             for cost in costs {
                 consistency += cost;
             }
         }
-        h.fill_lower_triangle_with_upper_triangle();
-        if !state.field.is_empty() {
-            for (stencil, residual) in self.field_residuals(state) {
-                for &(a, va) in &stencil {
-                    g[field + a] += va * residual;
-                    for &(b, vb) in &stencil {
-                        h[(field + a, field + b)] += va * vb;
-                    }
+        equations.fill_lower();
+        for (stencil, residual) in self.field_residuals(state) {
+            for &(a, va) in &stencil {
+                equations.g[field + a] += va * residual;
+                for &(b, vb) in stencil.iter().filter(|(b, _)| *b <= a) {
+                    equations.add_field(a, b, va * vb);
                 }
             }
         }
-        self.landmarks
-            .normal_equations(state, self.options, &mut h, &mut g);
+        let Equations { a: h, g, .. } = &mut equations;
+        self.landmarks.normal_equations(state, self.options, h, g);
         for (m, s) in self.sigma_prior.iter().enumerate() {
             h[(m, m)] += 1.0 / (s * s);
             g[m] += state.weights[m] / (s * s);
@@ -2324,11 +2320,11 @@ impl Level<'_> {
             if self.options.perspective {
                 let centre = self.perspective_prior[i];
                 let d = 1.0 / (PERSPECTIVE_SPREAD * centre);
-                h[(t, t)] += d * d;
-                g[t] += d * perspective_residual(camera.perspective, centre);
+                equations.a[(t, t)] += d * d;
+                equations.g[t] += d * perspective_residual(camera.perspective, centre);
             } else {
                 // κ stays 0.
-                hold(&mut h, &mut g, t);
+                equations.hold(t);
             }
         }
         let held_face = (0..k).chain(field..n).filter(|_| self.face_held);
@@ -2339,12 +2335,32 @@ impl Level<'_> {
             .filter(|(_, held)| **held)
             .flat_map(|(i, _)| k + CAMERA * i..k + CAMERA * (i + 1));
         for t in held_face.chain(held_cameras) {
-            hold(&mut h, &mut g, t);
+            equations.hold(t);
         }
         let cost = self.scaled_consistency(consistency)
             + self.landmarks.cost(state, self.options)
             + self.prior(state);
-        (h, g, cost)
+        (equations, cost)
+    }
+
+    /// The half-bandwidth of the field's block of the normal equations: the widest spread of
+    /// control points that one sample's basis or one of the prior's stencils couples (0
+    /// without a field).
+    fn field_bandwidth(&self, state: &State) -> usize {
+        if state.field.is_empty() {
+            return 0;
+        }
+        let spread = |points: &mut dyn Iterator<Item = usize>| {
+            let (lo, hi) = points.fold((usize::MAX, 0), |(lo, hi), p| (lo.min(p), hi.max(p)));
+            hi.saturating_sub(lo)
+        };
+        let basis = self
+            .samples
+            .basis
+            .iter()
+            .map(|b| spread(&mut b.iter().map(|&(p, _)| p)));
+        // The prior's stencils reach one row and one column on (`field_residuals`).
+        basis.max().unwrap_or(0).max(self.grid.1 + 1)
     }
 
     /// The held-out photos' disagreement with the others at `state`: per sample two of the
@@ -2368,15 +2384,6 @@ impl Level<'_> {
         .flatten()
         .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
-}
-
-/// Holds unknown `t` where it is in a Gauss-Newton step: its row and column of `h` become
-/// the identity's, its gradient none.
-fn hold(h: &mut DMatrix<Real>, g: &mut DVector<Real>, t: usize) {
-    h.row_mut(t).fill(0.0);
-    h.column_mut(t).fill(0.0);
-    h[(t, t)] = 1.0;
-    g[t] = 0.0;
 }
 
 /// The folds of [`RefineOptions::held_out`]: per fold, which photos it holds out. The photos
@@ -3022,18 +3029,14 @@ impl Level<'_> {
         for _ in 0..max_iterations {
             *iterations += 1;
             let visibility = self.visibility(&state);
-            let (h, g, cost) = self.normal_equations(&state, &visibility);
+            let (equations, cost) = self.normal_equations(&state, &visibility);
             let mut improved = false;
             for _ in 0..8 {
-                let mut damped = h.clone();
-                for d in 0..damped.nrows() {
-                    damped[(d, d)] += damping * h[(d, d)].max(1e-9);
-                }
-                let Some(chol) = damped.cholesky() else {
+                let Some(step) = equations.solve_damped(damping) else {
                     damping *= 10.0;
                     continue;
                 };
-                let step = -chol.solve(&g);
+                let step = -step;
                 let mut next = state.moved(&step);
                 let identity = next.weights.len() - self.shift_limits.len();
                 for (w, &(low, high)) in next.weights[identity..].iter_mut().zip(self.shift_limits) {
@@ -3203,13 +3206,9 @@ mod tests {
             .collect();
         let (total, mean) = agreement(&seen).expect("three views");
         let (scale, c) = (0.7, 1.1);
-        let mut h = DMatrix::zeros(n, n);
-        let mut g = DVector::zeros(n);
-        Level::add_sample(
-            &modes,
-            (field, &basis, &seen, (total, mean), (scale, c)),
-            (&mut h, &mut g),
-        );
+        let mut equations = Equations::zeros(field, n - field, 3);
+        Level::add_sample(&modes, (&basis, &seen, (total, mean), (scale, c)), &mut equations);
+        let (h, g) = (equations.to_dense(), equations.g);
 
         let mut expected_h = DMatrix::<Real>::zeros(n, n);
         let mut expected_g = DVector::<Real>::zeros(n);
@@ -3255,8 +3254,8 @@ mod tests {
                     expected_h[(i, j)]
                 );
             }
-            for i in j + 1..n {
-                assert_eq!(h[(i, j)], 0.0, "only the upper triangle is filled");
+            for i in j + 1..field {
+                assert_eq!(h[(i, j)], 0.0, "only the dense block's upper triangle is filled");
             }
         }
         assert!((g - expected_g).amax() < 1e-12);
