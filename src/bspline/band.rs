@@ -130,11 +130,17 @@ pub(crate) struct BandCholesky {
 impl BandCholesky {
     /// Solves `A·x = b` in place for `D` right-hand sides stored as rows of `D` values.
     pub(crate) fn solve_in_place<const D: usize>(&self, b: &mut [[Real; D]]) {
+        self.forward_in_place(b);
+        self.backward_in_place(b);
+    }
+
+    /// Solves `L·y = b` in place (the first half of [`BandCholesky::solve_in_place`]), row by
+    /// row.
+    pub(crate) fn forward_in_place<const D: usize>(&self, b: &mut [[Real; D]]) {
         let (n, k) = (self.l.n, self.l.k);
         let w = k + 1;
         let data = &self.l.data;
         assert_eq!(b.len(), n);
-        // L·y = b, row by row.
         for i in 0..n {
             let first = i.saturating_sub(k);
             let row = &data[i * w + k - (i - first)..i * w + k];
@@ -150,7 +156,15 @@ impl BandCholesky {
             }
             b[i] = s;
         }
-        // Lᵀ·x = y, column by column (each column of Lᵀ is a contiguous row of L).
+    }
+
+    /// Solves `Lᵀ·x = y` in place (the second half of [`BandCholesky::solve_in_place`]),
+    /// column by column (each column of `Lᵀ` is a contiguous row of `L`).
+    pub(crate) fn backward_in_place<const D: usize>(&self, b: &mut [[Real; D]]) {
+        let (n, k) = (self.l.n, self.l.k);
+        let w = k + 1;
+        let data = &self.l.data;
+        assert_eq!(b.len(), n);
         for i in (0..n).rev() {
             let pivot = data[i * w + k];
             for v in &mut b[i] {

@@ -49,6 +49,12 @@
 //!   `ρ` a Cauchy loss (shadows, highlights and hair disagree for reasons other than shape).
 //! * `Fₛ(w)`, `Sⱼ(w)` are the space's surface at sample `s` and its structure point `j`;
 //!   `Gₛ`, `Eⱼ` the photo's expression (fixed at the landmark fit's).
+//! * At the finest level a depth displacement `d` of the control grid joins the unknowns
+//!   ([`RefineOptions::field`], on by default): the sample becomes `Fₛ(w) + Σₑ βₛₑ dₑ z`
+//!   (`βₛₑ` the surface's basis values at the sample; the normals stay the space's), and the
+//!   priors gain `Σ (Δ²d / b)² + Σₑ (dₑ / s)²`, the grid's second differences along rows,
+//!   columns and across under [`RefineOptions::field_bend`] and a ridge under
+//!   [`RefineOptions::field_sigma`].
 //!
 //! Gauss-Newton with Levenberg–Marquardt damping, coarse to fine over image scales
 //! ([`RefineOptions::levels`]): at each level the photos are cropped about the face and
@@ -152,30 +158,45 @@ pub struct RefineOptions {
     pub window_eyes: Real,
     /// Also fit a depth displacement of every control point (the detail the space cannot
     /// carry), held by a thin-plate smoothness ([`RefineOptions::field_bend`]) and a ridge
-    /// ([`RefineOptions::field_sigma`]). Off by default: on `tools/photo_eval` (105 sets,
-    /// the default gate) it gave a mean ratio to the mean face of 0.88 / 0.75 / 0.76 / 0.71 /
-    /// 0.75 for 2 / 3 / 4 / 8 / 16 photos against the default's 0.87 / 0.76 / 0.77 / 0.69 /
-    /// 0.69 (0.769 against 0.754 over every set; better on 21 sets, worse on 40, the worst
-    /// 1.57× against 1.35×), 12 sets more than 2% worse than the landmark fit as the default
-    /// has; on `lps-head` it changed only photos-3 (0.79× against 0.81×). Measured with the
-    /// window in the image. With the lit measure the field moves the sampled points alone: its
-    /// lift is left out of the normals that shade the face, in the cost and the Jacobian alike
-    /// (`Samples::shape_normals`); on the test's bump it took 25% off the bump's error,
-    /// against 40% or more with the window (`tests/splineface/refine.rs`).
+    /// ([`RefineOptions::field_sigma`]), at the finest [`RefineOptions::field_levels`]
+    /// levels. On by default. With the lit measure the field moves the sampled points alone:
+    /// its lift is left out of the normals that shade the face, in the cost and the Jacobian
+    /// alike (`Samples::shape_normals`). Its unknowns (one per control point, 1024 for the
+    /// 32 × 32 grid) are solved for through their banded block's Schur complement
+    /// (`equations.rs`).
     ///
-    /// Under the lit measure (`cargo run --release --example photo_eval -- --methods
-    /// "default,refine field"`, 105 scored sets, the same run): 0.80 / 0.72 / 0.70 / 0.67 /
-    /// 0.62 for 2 / 3 / 4 / 8 / 16 photos against 0.79 / 0.72 / 0.71 / 0.71 / 0.70, 0.777
-    /// against 0.806 of the landmark fit's error on average, 5 sets more than 2% worse than it
-    /// as the default has (the worst 1.20 against 1.17); `lps-head/photos-8` 0.83 against 0.90
-    /// the mean face, photos-3 0.77 against 0.80, but the scan's 16-photo sets 0.79 / 0.80 /
-    /// 0.79 against 0.78 / 0.77 / 0.75; the evaluation took 2.7 times as long. Still off: the
-    /// time, and the default's figures elsewhere (README, demo) not yet re-measured with it.
-    /// Letting the field tilt the normals too (its lift in the shading and the Jacobian,
-    /// exact) was measured and dropped: 0.78 / 0.71 / 0.74 / 0.76 / 0.83, 0.853 of the
-    /// landmark fit, 12 sets more than 2% worse (the worst 1.44): the field then bends the
-    /// surface to explain the light (shadows, sheen) instead of the photos' agreement.
+    /// Measured by `cargo run --release --example photo_eval -- --methods "default,refine no
+    /// field,landmarks only"` and `--methods "default,refine field all levels"` (105 scored
+    /// sets; the mean ratio to the mean face's error for 2 / 3 / 4 / 8 / 16 photos; to the
+    /// landmark fit's, the sets more than 2% worse than it, the worst; the scan's given sets;
+    /// the largest distance between two halves of 16 photos of one subject):
+    ///
+    /// | field | 2 | 3 | 4 | 8 | 16 | to the landmark fit | worse | worst | photos-8, photos-3 | halves |
+    /// |---|---|---|---|---|---|---|---|---|---|---|
+    /// | none (the default before) | 0.79 | 0.72 | 0.71 | 0.71 | 0.70 | 0.806 | 5 | 1.18 | 0.90, 0.80 | 0.79 mm |
+    /// | at every level | 0.80 | 0.72 | 0.70 | 0.67 | 0.62 | 0.777 | 5 | 1.21 | 0.83, 0.77 | 0.72 mm |
+    /// | **at the finest level** | 0.78 | 0.72 | 0.70 | 0.66 | 0.62 | 0.773 | 4 | 1.15 | 0.83, 0.78 | 0.70 mm |
+    ///
+    /// At the coarser levels (200 and 800 samples against the field's 1024 unknowns, the
+    /// photos blurred to 20 and 40 pixels between the eyes) the photos cannot see what the
+    /// field would carry; fitted there it only follows their noise. The field costs the real
+    /// scan's 16-photo sets a little (0.79 / 0.80 / 0.80 against 0.78 / 0.77 / 0.75 without it)
+    /// and `reconstruct` of `lps-head/photos-8` about half a second (the refinement 950 ms
+    /// against 471, `tools/ab-bench`, best of four each).
+    ///
+    /// Measured and dropped: with the window in the image the field made faces worse (0.769
+    /// against 0.754 of the mean face over every set, 12 sets more than 2% worse than the
+    /// landmark fit as without it); letting the field tilt the normals under the lit measure
+    /// (its lift in the shading and the Jacobian, exact) gave 0.78 / 0.71 / 0.74 / 0.76 / 0.83,
+    /// 0.853 of the landmark fit, 12 sets more than 2% worse (the worst 1.44): the field then
+    /// bends the surface to explain the light (shadows, sheen) instead of the photos'
+    /// agreement.
     pub field: bool,
+    /// At how many of the finest levels the field is fitted (at least 1; more than
+    /// [`RefineOptions::levels`] means every level), from zero where it joins; the coarser
+    /// levels fit the space and the cameras alone. 1 by default ([`RefineOptions::field`] has
+    /// the figures).
+    pub field_levels: usize,
     /// The deviation of one second difference of the displacement grid, canonical units.
     pub field_bend: Real,
     /// The prior deviation of one control point's displacement, canonical units.
@@ -309,7 +330,8 @@ pub struct RefineOptions {
 impl Default for RefineOptions {
     /// Three levels (eye distances of 20, 40 and 80 pixels, samples 8, 4 and 2 units apart),
     /// sixteen iterations each at most, `σ = 0.5`, `β = 0.03`, `ε = 4`, perspective cameras, the
-    /// photos compared with the face lit ([`Window::Lit`]), no displacement field, kept when
+    /// photos compared with the face lit ([`Window::Lit`]), a displacement field at the finest
+    /// level ([`RefineOptions::field`], measured there; the table below without it), kept when
     /// the disagreement falls at all, in proportion up to a fall of 5% and whole from there (no
     /// check on photos left out, [`RefineOptions::held_out`]).
     ///
@@ -444,7 +466,8 @@ impl Default for RefineOptions {
             perspective: true,
             window: Window::Lit,
             window_eyes: NORMALISATION_EYES,
-            field: false,
+            field: true,
+            field_levels: 1,
             field_bend: 3.0,
             field_sigma: 10.0,
             min_gain: 0.0,
@@ -2195,10 +2218,15 @@ impl Level<'_> {
         }
         // Identity × field, field × field, and the field's gradient.
         let az = a.column(2).into_owned();
+        let maz: Vec<Real> = if basis.is_empty() {
+            Vec::new()
+        } else {
+            modes.iter().map(|m| m.dot(&az)).collect()
+        };
         for (e, &(cp, value)) in basis.iter().enumerate() {
             let row = &mut cross[cp * n..cp * n + k];
-            for (entry, mi) in row.iter_mut().zip(modes) {
-                *entry += mi.dot(&az) * value;
+            for (entry, m) in row.iter_mut().zip(&maz) {
+                *entry += m * value;
             }
             for &(other, other_value) in &basis[..=e] {
                 band.add(cp, other, a[(2, 2)] * value * other_value);
@@ -2534,7 +2562,8 @@ impl FaceSpace {
     ///
     /// # Errors
     /// [`FaceError::Option`] when the views do not match the fit, or for options out of range
-    /// (levels not 1 to 6; the eye pixels, spacing, `σ`, `β`, `ε` or window not positive and finite).
+    /// (levels not 1 to 6, field levels 0; the eye pixels, spacing, `σ`, `β`, `ε`, window or
+    /// the field's deviations not positive and finite).
     pub fn refine_photos(
         &self,
         reference: &ReferenceFace,
@@ -2934,9 +2963,15 @@ impl FaceSpace {
         face_held: bool,
     ) -> Result<(State, usize, Level<'a>), FaceError> {
         let mut state = problem.start.clone();
+        // The field joins at the finest `field_levels` levels, from zero.
+        let field = std::mem::take(&mut state.field);
+        let field_from = options.levels.saturating_sub(options.field_levels);
         let mut iterations = 0;
         let mut finest = None;
         for level_index in 0..options.levels {
+            if level_index == field_from {
+                state.field = field.clone();
+            }
             let mut level = self.level(reference, problem, &state, level_index, options)?;
             if let Some(held_out) = held_out {
                 for (w, &out) in level.photo_weights.iter_mut().zip(held_out) {
@@ -2954,7 +2989,7 @@ impl FaceSpace {
 }
 
 /// [`FaceSpace::refine_photos`]' checks: one view per photo of the fit with 40 points, 1 to 6
-/// levels, positive and finite scales and weights.
+/// levels, the field at one level or more, positive and finite scales and weights.
 fn check_refine(
     fit: &PhotoSpaceFit,
     views: &[RefineView<'_>],
@@ -2978,6 +3013,9 @@ fn check_refine(
     if !(1..=6).contains(&options.levels) {
         return bad("levels", options.levels.to_string(), "1 to 6");
     }
+    if options.field_levels == 0 {
+        return bad("field levels", "0".into(), "at least 1");
+    }
     for (name, v) in [
         ("eye pixels", options.eye_pixels),
         ("spacing", options.spacing),
@@ -2985,6 +3023,8 @@ fn check_refine(
         ("beta", options.beta),
         ("noise", options.noise),
         ("window eyes", options.window_eyes),
+        ("field bend", options.field_bend),
+        ("field sigma", options.field_sigma),
     ] {
         if !positive(v) {
             return bad(name, v.to_string(), "positive and finite");

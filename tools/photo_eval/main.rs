@@ -1531,9 +1531,16 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             }),
         ),
         method(
-            "refine field",
+            "refine field all levels",
             refined(RefineOptions {
-                field: true,
+                field_levels: usize::MAX,
+                ..RefineOptions::default()
+            }),
+        ),
+        method(
+            "refine no field",
+            refined(RefineOptions {
+                field: false,
                 ..RefineOptions::default()
             }),
         ),

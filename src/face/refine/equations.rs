@@ -11,12 +11,13 @@
 //! (the Schur complement):
 //!
 //! ```text
-//! [ A  B ] [x₁]   [g₁]      D = L Lᵀ (band),  W = D⁻¹ Bᵀ,  z = D⁻¹ g₂
-//! [ Bᵀ D ] [x₂] = [g₂]      (A − B W) x₁ = g₁ − B z,   x₂ = z − W x₁
+//! [ A  B ] [x₁]   [g₁]      D = L Lᵀ (band),  V = L⁻¹ Bᵀ,  y = L⁻¹ g₂
+//! [ Bᵀ D ] [x₂] = [g₂]      (A − Vᵀ V) x₁ = g₁ − Vᵀ y,   x₂ = L⁻ᵀ (y − V x₁)
 //! ```
 //!
-//! at `n·k²/2` for the band's factorisation and `2·n·k` per right-hand side, with `n` field
-//! unknowns of half-bandwidth `k`, and one small dense factorisation of the Schur complement.
+//! at `n·k²/2` for the band's factorisation and `n·k` per right-hand side of the forward
+//! substitution, with `n` field unknowns of half-bandwidth `k`, and one small dense
+//! factorisation of the Schur complement.
 //! Without a field the equations are the dense block alone and solved as before, to the bit.
 
 use crate::Real;
@@ -138,9 +139,9 @@ impl Equations {
             band.add(d, d, damp(self.band.diagonal(d)));
         }
         let l = band.cholesky().ok()?;
-        // W = D⁻¹ Bᵀ and z = D⁻¹ g₂: `m + 1` right-hand sides, solved `BLOCK` at a time
-        // (each row of the factor read once per block; the blocks in parallel, each one's
-        // arithmetic the same whatever the threads).
+        // V = L⁻¹ Bᵀ and y = L⁻¹ g₂ (forward substitution alone): `m + 1` right-hand sides,
+        // `BLOCK` at a time (each row of the factor read once per block; the blocks in
+        // parallel, each one's arithmetic the same whatever the threads).
         const BLOCK: usize = 8;
         let column = |j: usize, c: usize| {
             if j < m {
@@ -160,24 +161,28 @@ impl Equations {
                         })
                     })
                     .collect();
-                l.solve_in_place(&mut rows);
+                l.forward_in_place(&mut rows);
                 rows
             })
             .collect();
-        let w = DMatrix::from_fn(f, m + 1, |c, j| solved[j / BLOCK][c][j % BLOCK]);
-        let (w, z) = (w.columns(0, m), w.column(m));
-        // S = A − B W, and its right-hand side g₁ − B z.
-        let b = DMatrix::from_column_slice(m, f, &self.cross);
+        let v = DMatrix::from_fn(f, m + 1, |c, j| solved[j / BLOCK][c][j % BLOCK]);
+        let (v, y) = (v.columns(0, m), v.column(m));
+        // S = A − B D⁻¹ Bᵀ = A − Vᵀ V, and its right-hand side g₁ − B D⁻¹ g₂ = g₁ − Vᵀ y.
         let mut s = a;
-        s.gemm(-1.0, &b, &w, 1.0);
+        s.gemm_tr(-1.0, &v, &v, 1.0);
         let mut rhs = self.g.rows(0, m).into_owned();
-        rhs.gemv(-1.0, &b, &z, 1.0);
+        rhs.gemv_tr(-1.0, &v, &y, 1.0);
         let x1 = s.cholesky()?.solve(&rhs);
-        let mut x2 = z.into_owned();
-        x2.gemv(-1.0, &w, &x1, 1.0);
+        // x₂ = D⁻¹ (g₂ − Bᵀ x₁) = L⁻ᵀ (y − V x₁).
+        let mut t = y.into_owned();
+        t.gemv(-1.0, &v, &x1, 1.0);
+        let mut x2: Vec<[Real; 1]> = t.iter().map(|&r| [r]).collect();
+        l.backward_in_place(&mut x2);
         let mut x = DVector::zeros(m + f);
         x.rows_mut(0, m).copy_from(&x1);
-        x.rows_mut(m, f).copy_from(&x2);
+        for (to, from) in x.as_mut_slice()[m..].iter_mut().zip(&x2) {
+            *to = from[0];
+        }
         Some(x)
     }
 }
