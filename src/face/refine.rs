@@ -181,8 +181,8 @@ pub struct RefineOptions {
     /// photos blurred to 20 and 40 pixels between the eyes) the photos cannot see what the
     /// field would carry; fitted there it only follows their noise. The field costs the real
     /// scan's 16-photo sets a little (0.79 / 0.80 / 0.80 against 0.78 / 0.77 / 0.75 without it)
-    /// and `reconstruct` of `lps-head/photos-8` about half a second (the refinement 950 ms
-    /// against 471, `tools/ab-bench`, best of four each).
+    /// and `reconstruct` of `lps-head/photos-8` about a fifth of a second (the refinement 450
+    /// ms against 256, the whole 1.16 s against 0.99, `tools/ab-bench`, best of four each).
     ///
     /// Measured and dropped: with the window in the image the field made faces worse (0.769
     /// against 0.754 of the mean face over every set, 12 sets more than 2% worse than the

@@ -210,6 +210,11 @@ pub struct RefinementReport {
     pub disagreement_after: Real,
     /// Before.
     pub disagreement_before: Real,
+    /// The largest depth displacement of a control point kept from the refinement
+    /// ([`crate::face::RefineOptions::field`]), canonical units; `None` without a field.
+    pub field_max_units: Option<Real>,
+    /// Its RMS over the control points.
+    pub field_rms_units: Option<Real>,
     /// The photos left out's disagreement with the others on the face the others refined
     /// ([`crate::face::Refinement::held_out`]); `None` where the check did not run.
     pub held_out_after: Option<Real>,
@@ -613,6 +618,12 @@ impl Reconstruction {
             coverage: r.coverage.clone(),
             disagreement_after: r.disagreement.1,
             disagreement_before: r.disagreement.0,
+            field_max_units: (!r.displacement.is_empty())
+                .then(|| r.displacement.iter().map(|d| d.norm()).fold(0.0, Real::max)),
+            field_rms_units: (!r.displacement.is_empty()).then(|| {
+                (r.displacement.iter().map(|d| d.norm_squared()).sum::<Real>() / r.displacement.len() as Real)
+                    .sqrt()
+            }),
             held_out_after: r.held_out.map(|h| h.1),
             held_out_before: r.held_out.map(|h| h.0),
             iterations: r.iterations,

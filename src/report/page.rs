@@ -559,7 +559,7 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
                 "did not run".to_owned()
             } else {
                 format!(
-                    "{} (disagreement {} → {}{})",
+                    "{} (disagreement {} → {}{}{})",
                     match (refinement["accepted"].as_bool(), refinement["share"].as_f64()) {
                         (Some(true), Some(share)) if share < 1.0 => {
                             format!("kept {:.0}% of the way from the landmark fit", 100.0 * share)
@@ -574,6 +574,15 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
                             "; photos left out {} → {}",
                             number(refinement.get("held_out_before"), 3),
                             number(refinement.get("held_out_after"), 3)
+                        )
+                    } else {
+                        String::new()
+                    },
+                    if refinement["field_max_units"].is_number() {
+                        format!(
+                            "; the control grid displaced in depth by up to {} units, RMS {}",
+                            number(refinement.get("field_max_units"), 2),
+                            number(refinement.get("field_rms_units"), 2)
                         )
                     } else {
                         String::new()
@@ -743,6 +752,22 @@ mod tests {
         assert!(
             part.contains("kept 31% of the way from the landmark fit (disagreement 0.500 → 0.430)"),
             "{part}"
+        );
+        // With a displacement field: its size.
+        let report = serde_json::json!({
+            "surface": {"refinement": {
+                "accepted": true,
+                "disagreement_before": 0.5,
+                "disagreement_after": 0.43,
+                "field_max_units": 1.234,
+                "field_rms_units": 0.25,
+            }}
+        });
+        let mut field = String::new();
+        summary(&mut field, &report, &Value::Null);
+        assert!(
+            field.contains("(disagreement 0.500 → 0.430; the control grid displaced in depth by up to 1.23 units, RMS 0.25)"),
+            "{field}"
         );
     }
 
