@@ -169,7 +169,8 @@ impl Equations {
         let (v, y) = (v.columns(0, m), v.column(m));
         // S = A − B D⁻¹ Bᵀ = A − Vᵀ V, and its right-hand side g₁ − B D⁻¹ g₂ = g₁ − Vᵀ y.
         let mut s = a;
-        s.gemm_tr(-1.0, &v, &v, 1.0);
+        // (nalgebra's `gemm` on the transposed copy is the blocked product; `gemm_tr` is not.)
+        s.gemm(-1.0, &v.transpose(), &v, 1.0);
         let mut rhs = self.g.rows(0, m).into_owned();
         rhs.gemv_tr(-1.0, &v, &y, 1.0);
         let x1 = s.cholesky()?.solve(&rhs);
