@@ -2140,9 +2140,9 @@ impl Level<'_> {
     }
 
     /// Adds one sample's consistency residuals to the normal equations (the dense block's
-    /// upper triangle, the cross and field blocks, the gradient). `(total, mean)` are the seeing views' summed weight and weighted mean
-    /// ([`agreement`]); `(scale, c)` the residuals' scale `β / σ²` and the Cauchy loss's
-    /// parameter.
+    /// upper triangle, the cross and field blocks, the gradient). `(total, mean)` are the
+    /// seeing views' summed weight and weighted mean ([`agreement`]); `(scale, c)` the
+    /// residuals' scale `β / σ²` and the Cauchy loss's parameter.
     ///
     /// View `a`'s residual is `rootₐ (Nₐ − μ)`, `rootₐ² = ρₐ` its weight (visibility, scale and
     /// the loss's reweighting), with the views' weighted mean `μ = Σ sₐ Nₐ` eliminated (`sₐ` a
@@ -2387,8 +2387,9 @@ impl Level<'_> {
             .basis
             .iter()
             .map(|b| spread(&mut b.iter().map(|&(p, _)| p)));
-        // The prior's stencils reach one row and one column on (`field_residuals`).
-        basis.max().unwrap_or(0).max(self.grid.1 + 1)
+        // The prior's stencils reach two rows on, or one row and one column
+        // (`field_residuals`).
+        basis.max().unwrap_or(0).max(2 * self.grid.1).max(self.grid.1 + 1)
     }
 
     /// The held-out photos' disagreement with the others at `state`: per sample two of the
