@@ -550,6 +550,15 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
     let surface = &report["surface"];
     let refinement = &surface["refinement"];
     let texture = &report["texture"];
+    // Two of the refinement's figures, where the first is given.
+    let pair = |first: &str, second: &str, digits: usize| {
+        refinement[first].is_number().then(|| {
+            (
+                number(refinement.get(first), digits),
+                number(refinement.get(second), digits),
+            )
+        })
+    };
     let facts: Vec<(&str, String)> = vec![
         ("frontal structure", text(report.get("frontal_method")).to_owned()),
         ("shape", text(surface.get("shape")).to_owned()),
@@ -569,24 +578,14 @@ fn summary(page: &mut String, report: &Value, structure: &Value) {
                     },
                     number(refinement.get("disagreement_before"), 3),
                     number(refinement.get("disagreement_after"), 3),
-                    if refinement["held_out_before"].is_number() {
-                        format!(
-                            "; photos left out {} → {}",
-                            number(refinement.get("held_out_before"), 3),
-                            number(refinement.get("held_out_after"), 3)
-                        )
-                    } else {
-                        String::new()
-                    },
-                    if refinement["field_max_units"].is_number() {
-                        format!(
-                            "; the control grid displaced in depth by up to {} units, RMS {}",
-                            number(refinement.get("field_max_units"), 2),
-                            number(refinement.get("field_rms_units"), 2)
-                        )
-                    } else {
-                        String::new()
-                    }
+                    pair("held_out_before", "held_out_after", 3)
+                        .map(|(before, after)| format!("; photos left out {before} → {after}"))
+                        .unwrap_or_default(),
+                    pair("field_max_units", "field_rms_units", 2)
+                        .map(|(max, rms)| format!(
+                            "; the control grid displaced in depth by up to {max} units, RMS {rms}"
+                        ))
+                        .unwrap_or_default()
                 )
             },
         ),
@@ -738,33 +737,32 @@ mod tests {
             "{unchecked}"
         );
         assert!(!unchecked.contains("left out"), "{unchecked}");
-        // Kept in part: the share is named.
-        let report = serde_json::json!({
-            "surface": {"refinement": {
+        // The line of a refinement accepted with `extra` (disagreement 0.5 → 0.43).
+        let with = |extra: Value| {
+            let mut refinement = serde_json::json!({
                 "accepted": true,
-                "share": 0.31,
                 "disagreement_before": 0.5,
                 "disagreement_after": 0.43,
-            }}
-        });
-        let mut part = String::new();
-        summary(&mut part, &report, &Value::Null);
+            });
+            for (key, value) in extra.as_object().expect("an object") {
+                refinement[key] = value.clone();
+            }
+            let mut page = String::new();
+            summary(
+                &mut page,
+                &serde_json::json!({"surface": {"refinement": refinement}}),
+                &Value::Null,
+            );
+            page
+        };
+        // Kept in part: the share is named.
+        let part = with(serde_json::json!({"share": 0.31}));
         assert!(
             part.contains("kept 31% of the way from the landmark fit (disagreement 0.500 → 0.430)"),
             "{part}"
         );
         // With a displacement field: its size.
-        let report = serde_json::json!({
-            "surface": {"refinement": {
-                "accepted": true,
-                "disagreement_before": 0.5,
-                "disagreement_after": 0.43,
-                "field_max_units": 1.234,
-                "field_rms_units": 0.25,
-            }}
-        });
-        let mut field = String::new();
-        summary(&mut field, &report, &Value::Null);
+        let field = with(serde_json::json!({"field_max_units": 1.234, "field_rms_units": 0.25}));
         assert!(
             field.contains("(disagreement 0.500 → 0.430; the control grid displaced in depth by up to 1.23 units, RMS 0.25)"),
             "{field}"

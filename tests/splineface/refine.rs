@@ -489,70 +489,22 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
         refine(&views[..2], &RefineOptions::default()),
         Err(FaceError::Option { name: "views", .. })
     ));
+    // The default options with one changed.
+    let with = |change: fn(&mut RefineOptions)| {
+        let mut options = RefineOptions::default();
+        change(&mut options);
+        options
+    };
     for (options, name) in [
-        (
-            RefineOptions {
-                levels: 0,
-                ..RefineOptions::default()
-            },
-            "levels",
-        ),
-        (
-            RefineOptions {
-                sigma: 0.0,
-                ..RefineOptions::default()
-            },
-            "sigma",
-        ),
-        (
-            RefineOptions {
-                beta: Real::NAN,
-                ..RefineOptions::default()
-            },
-            "beta",
-        ),
-        (
-            RefineOptions {
-                spacing: -1.0,
-                ..RefineOptions::default()
-            },
-            "spacing",
-        ),
-        (
-            RefineOptions {
-                full_gain: Real::NAN,
-                ..RefineOptions::default()
-            },
-            "full gain",
-        ),
-        (
-            RefineOptions {
-                window_eyes: 0.0,
-                ..RefineOptions::default()
-            },
-            "window eyes",
-        ),
-        (
-            RefineOptions {
-                field_levels: 0,
-                ..RefineOptions::default()
-            },
-            "field levels",
-        ),
-        (
-            RefineOptions {
-                field_bend: Real::INFINITY,
-                ..RefineOptions::default()
-            },
-            "field bend",
-        ),
-        (
-            RefineOptions {
-                field_sigma: -2.0,
-                ..RefineOptions::default()
-            },
-            "field sigma",
-        ),
+        (with(|o| o.levels = 0), "levels"),
+        (with(|o| o.sigma = 0.0), "sigma"),
+        (with(|o| o.beta = Real::NAN), "beta"),
+        (with(|o| o.spacing = -1.0), "spacing"),
+        (with(|o| o.full_gain = Real::NAN), "full gain"),
+        (with(|o| o.window_eyes = 0.0), "window eyes"),
+        (with(|o| o.field_levels = 0), "field levels"),
+        (with(|o| o.field_bend = Real::INFINITY), "field bend"),
+        (with(|o| o.field_sigma = -2.0), "field sigma"),
     ] {
         match refine(&views, &options) {
             Err(FaceError::Option { name: got, .. }) => assert_eq!(got, name),
@@ -565,41 +517,27 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
 fn the_displacement_field_follows_a_bump_the_space_cannot_express() {
     let scene = scene_with_bump(&[1.0, -1.0, 0.5], 4.0);
     let (weights, fit, views) = landmark_fit(&scene);
-    let refine = |field| {
+    let refine = |options: RefineOptions| {
         scene
             .space
-            .refine_photos(
-                scene.reference,
-                &fit,
-                &views,
-                &weights,
-                &RefineOptions {
-                    field,
-                    // The window the field was built and measured with, the field at every
-                    // level: under the lit measure its Jacobian leaves out how the field
-                    // bends the normals, and it takes less off the bump's error (below).
-                    window: Window::Image,
-                    field_levels: usize::MAX,
-                    ..RefineOptions::default()
-                },
-            )
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
             .unwrap()
     };
-    let (plain, with_field) = (refine(false), refine(true));
+    // The window the field was built and measured with, the field at every level: under the
+    // lit measure its Jacobian leaves out how the field bends the normals, and it takes less
+    // off the bump's error (below).
+    let image = |field| RefineOptions {
+        field,
+        window: Window::Image,
+        field_levels: usize::MAX,
+        ..RefineOptions::default()
+    };
+    let (plain, with_field) = (refine(image(false)), refine(image(true)));
     let lit = |field| {
-        scene
-            .space
-            .refine_photos(
-                scene.reference,
-                &fit,
-                &views,
-                &weights,
-                &RefineOptions {
-                    field,
-                    ..RefineOptions::default()
-                },
-            )
-            .unwrap()
+        refine(RefineOptions {
+            field,
+            ..RefineOptions::default()
+        })
     };
     let (lit_plain, lit_field) = (lit(false), lit(true));
     let lit_errors = [&lit_plain, &lit_field]
