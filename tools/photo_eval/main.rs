@@ -1374,6 +1374,12 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
     };
     // The default pipeline with these refinement options.
     let refined = |options: RefineOptions| with(&|o| o.refine = Some(options));
+    // The default refinement with some options changed.
+    let refined_with = |change: &dyn Fn(&mut RefineOptions)| {
+        let mut options = RefineOptions::default();
+        change(&mut options);
+        refined(options)
+    };
     let method = |name, options| Method {
         name,
         options,
@@ -1516,171 +1522,104 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
                 }
             }),
         ),
-        method(
-            "refine β0.1",
-            refined(RefineOptions {
-                beta: 0.1,
-                ..RefineOptions::default()
-            }),
-        ),
-        method(
-            "refine β0.3",
-            refined(RefineOptions {
-                beta: 0.3,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine β0.1", refined_with(&|o| o.beta = 0.1)),
+        method("refine β0.3", refined_with(&|o| o.beta = 0.3)),
         method(
             "refine field all levels",
-            refined(RefineOptions {
-                field_levels: usize::MAX,
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.field_levels = usize::MAX),
         ),
-        method(
-            "refine no field",
-            refined(RefineOptions {
-                field: false,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine field bend 1.5", refined_with(&|o| o.field_bend = 1.5)),
+        method("refine field bend 6", refined_with(&|o| o.field_bend = 6.0)),
+        method("refine field sigma 3", refined_with(&|o| o.field_sigma = 3.0)),
+        method("refine field sigma 30", refined_with(&|o| o.field_sigma = 30.0)),
+        method("refine no field", refined_with(&|o| o.field = false)),
         method(
             "refine field ungated",
-            refined(RefineOptions {
-                field: true,
-                min_gain: Real::NEG_INFINITY,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.field = true;
+                o.min_gain = Real::NEG_INFINITY;
             }),
         ),
         method(
             "refine surface window",
-            refined(RefineOptions {
-                window: splineface::face::Window::Surface,
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.window = splineface::face::Window::Surface),
         ),
         method(
             "refine shaded",
-            refined(RefineOptions {
-                window: splineface::face::Window::Shaded,
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.window = splineface::face::Window::Shaded),
         ),
         method(
             "refine lit",
-            refined(RefineOptions {
-                window: splineface::face::Window::Lit,
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.window = splineface::face::Window::Lit),
         ),
         method(
             "refine lit ungated",
-            refined(RefineOptions {
-                window: splineface::face::Window::Lit,
-                min_gain: Real::NEG_INFINITY,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.window = splineface::face::Window::Lit;
+                o.min_gain = Real::NEG_INFINITY;
             }),
         ),
         method(
             "refine lit gate 0",
-            refined(RefineOptions {
-                window: splineface::face::Window::Lit,
-                min_gain: 0.0,
-                full_gain: 0.05,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.window = splineface::face::Window::Lit;
+                o.min_gain = 0.0;
+                o.full_gain = 0.05;
             }),
         ),
         method(
             "refine lit ungated beta 0.1",
-            refined(RefineOptions {
-                window: splineface::face::Window::Lit,
-                min_gain: Real::NEG_INFINITY,
-                beta: 0.1,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.window = splineface::face::Window::Lit;
+                o.min_gain = Real::NEG_INFINITY;
+                o.beta = 0.1;
             }),
         ),
         method(
             "refine shaded ungated",
-            refined(RefineOptions {
-                window: splineface::face::Window::Shaded,
-                min_gain: Real::NEG_INFINITY,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.window = splineface::face::Window::Shaded;
+                o.min_gain = Real::NEG_INFINITY;
             }),
         ),
         method(
             "refine identity normals",
-            refined(RefineOptions {
-                expression_normals: false,
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.expression_normals = false),
         ),
         method(
             "refine shift 0.25",
-            refined(RefineOptions {
-                expression_shift: Some(0.25),
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.expression_shift = Some(0.25)),
         ),
         method(
             "refine shift 0.5",
-            refined(RefineOptions {
-                expression_shift: Some(0.5),
-                ..RefineOptions::default()
-            }),
+            refined_with(&|o| o.expression_shift = Some(0.5)),
         ),
-        method(
-            "refine photo weights",
-            refined(RefineOptions {
-                photo_weights: true,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine photo weights", refined_with(&|o| o.photo_weights = true)),
         method(
             "refine ungated",
-            refined(RefineOptions {
-                min_gain: Real::NEG_INFINITY,
-                landmark_slack: Real::INFINITY,
-                held_out: false,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.min_gain = Real::NEG_INFINITY;
+                o.landmark_slack = Real::INFINITY;
+                o.held_out = false;
             }),
         ),
-        method(
-            "refine iterations 8",
-            refined(RefineOptions {
-                iterations: 8,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine iterations 8", refined_with(&|o| o.iterations = 8)),
         method(
             "refine four levels",
-            refined(RefineOptions {
-                levels: 4,
-                eye_pixels: 160.0,
-                spacing: 1.0,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.levels = 4;
+                o.eye_pixels = 160.0;
+                o.spacing = 1.0;
             }),
         ),
-        method(
-            "refine spacing 1",
-            refined(RefineOptions {
-                spacing: 1.0,
-                ..RefineOptions::default()
-            }),
-        ),
-        method(
-            "refine held-out",
-            refined(RefineOptions {
-                held_out: true,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine spacing 1", refined_with(&|o| o.spacing = 1.0)),
+        method("refine held-out", refined_with(&|o| o.held_out = true)),
         method(
             "refine held-out ungated",
-            refined(RefineOptions {
-                min_gain: Real::NEG_INFINITY,
-                held_out: true,
-                min_held_out_gain: Real::NEG_INFINITY,
-                ..RefineOptions::default()
+            refined_with(&|o| {
+                o.min_gain = Real::NEG_INFINITY;
+                o.held_out = true;
+                o.min_held_out_gain = Real::NEG_INFINITY;
             }),
         ),
         // The refinement kept in proportion to the disagreement's fall between two thresholds
@@ -1690,13 +1629,7 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("refine soft 10-25", refined(soft(0.10, 0.25))),
         method("refine soft 5-20", refined(soft(0.05, 0.20))),
         method("refine soft 15-25", refined(soft(0.15, 0.25))),
-        method(
-            "refine orthographic",
-            refined(RefineOptions {
-                perspective: false,
-                ..RefineOptions::default()
-            }),
-        ),
+        method("refine orthographic", refined_with(&|o| o.perspective = false)),
     ];
     if names.is_empty() {
         return Ok(all.into_iter().take(1).collect());
