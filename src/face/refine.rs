@@ -247,8 +247,9 @@ pub struct RefineOptions {
     /// | **each photo's** | 0.69 / 0.61 | 0.76 / 0.71 | 0.75 / 0.70 | 1.11 / 1.15 | 1.09 / 1.17 |
     /// | the photos' mean expression | 0.70 / 0.62 | 0.80 / 0.77 | 0.76 / 0.70 | 1.18 / 1.24 | 1.10 / 1.14 |
     ///
-    /// On the main evaluation (`--methods "default,refine identity normals,landmarks only"`,
-    /// `tools/results/photos.md`, 105 sets) both come to 0.806× the landmark fit on average,
+    /// On the main evaluation without the displacement field (`--methods "default,refine
+    /// identity normals,landmarks only"`, `tools/results/photos.md` at commit 634c043, 105 sets)
+    /// both come to 0.806× the landmark fit on average,
     /// but the real scan's sets to 0.833× the mean face against 0.815× (its 8-photo sets 0.80 /
     /// 0.80 / 0.92× against 0.75 / 0.74 / 0.85×); 5 sets come out more than 2% worse than the
     /// landmark fit (4 with the identity's normals). On the scan's neutral photos the landmark
