@@ -29,7 +29,7 @@ use anyhow::{Context, Result, bail};
 use nalgebra::Point3;
 use splineface::Real;
 use splineface::compare::{InnerFaceOptions, inner_face_score};
-use splineface::face::{Deformation, DenseFitOptions, FaceSpace, FaceSurface, MeshOptions, SpaceFit, Units};
+use splineface::face::{Deformation, FaceSpace, FaceSurface, MeshOptions, SpaceFit, Units};
 use splineface::mesh::TriangleMesh;
 use splineface::reference::ReferenceFace;
 use splineface::structure::{from_ibug68, unify};
@@ -111,15 +111,6 @@ fn mean_placement(
     )
 }
 
-/// The landmark fit's noise per coordinate, mm, and the contour points' weight: chosen by the
-/// sweep this program prints. Small ε follows the landmarks: best on ICT identities, whose
-/// landmarks are the space's own vertices (0.38× at 0.5 mm), but on the real scan, whose
-/// landmarks were placed by other hands, it fits their definition differences into the shape
-/// (2.1× the mean face's error). 4 mm is the smallest that keeps the real scan below the mean
-/// face (0.90×) and still gives 0.63× on ICT identities (`tools/results/face-space.md`).
-const LANDMARK_NOISE: Real = 4.0;
-const CONTOUR_WEIGHT: Real = 1.0;
-
 /// The score of a fitted member of the space, placed where the fit put it.
 fn score_fit(
     reference: &ReferenceFace,
@@ -184,19 +175,11 @@ fn evaluate(
     let local = FaceSurface::deform(reference, &canonical, Deformation::default())?;
     let (mesh, structure) = placed(&local, &to_canonical.inverse())?;
     let local = score(&mesh, &structure, truth, truth_structure)?;
-    // The space's MAP fit to the true 3D landmarks (see `LANDMARK_NOISE`, `CONTOUR_WEIGHT`).
-    let fit = space.fit_structure(
-        truth_structure,
-        &splineface::structure::contour_weighted(CONTOUR_WEIGHT),
-        LANDMARK_NOISE,
-    )?;
+    // The space's MAP fit to the true 3D landmarks (`common::LANDMARK_NOISE`).
+    let fit = common::space_fit_to_landmarks(space, truth_structure)?;
     let landmarks = score_fit(reference, space, &fit, truth, truth_structure)?;
     let dense = if dense {
-        let options = DenseFitOptions {
-            noise: 0.5,
-            ..DenseFitOptions::default()
-        };
-        let fitted = space.fit_surface(reference, truth, &fit, &options)?;
+        let fitted = common::space_fit_densely(space, reference, truth, &fit)?;
         Some(score_fit(reference, space, &fitted, truth, truth_structure)?)
     } else {
         None

@@ -30,8 +30,8 @@ use splineface::Real;
 use splineface::align::PhotoPoints;
 use splineface::compare::{InnerFaceOptions, InnerFaceScore, inner_face_score};
 use splineface::face::{
-    Deformation, DenseFitOptions, ExpressionPrior, MeanFace, MeshOptions, PhotoSpaceFit, RefineOptions,
-    RefineView, Units, Window,
+    Deformation, ExpressionPrior, MeanFace, MeshOptions, PhotoSpaceFit, RefineOptions, RefineView, Units,
+    Window,
 };
 use splineface::landmarker::ShapePredictor;
 use splineface::mesh::TriangleMesh;
@@ -302,10 +302,6 @@ fn patch_consistency(photos: &[(&image::GrayImage, Vec<Point2<Real>>)]) -> Vec<R
         .collect()
 }
 
-/// The landmark noise (mm per coordinate) of the structure fit that starts the scan's dense
-/// fit in `--from-truth` (as `tools/face_space.rs`'s landmark fit).
-const DENSE_START_NOISE: Real = 4.0;
-
 /// `--from-truth`: for every set and each of several normalisation
 /// windows, the default refinement (kept whole) on the landmark fit's photos and cameras:
 /// the landmark fit's face and the subject's true one (the face space cut to
@@ -512,13 +508,8 @@ fn from_truth(
             None => match dense.get(&set.subject) {
                 Some(w) => w.clone(),
                 None => {
-                    let start = space.fit_structure(
-                        &subject.structure,
-                        &splineface::structure::contour_weighted(1.0),
-                        DENSE_START_NOISE,
-                    )?;
-                    let fitted =
-                        space.fit_surface(&chosen, &subject.truth, &start, &DenseFitOptions::default())?;
+                    let start = common::space_fit_to_landmarks(&space, &subject.structure)?;
+                    let fitted = common::space_fit_densely(&space, &chosen, &subject.truth, &start)?;
                     dense.insert(set.subject, fitted.weights.clone());
                     fitted.weights
                 }
