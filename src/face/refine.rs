@@ -2397,9 +2397,9 @@ impl Level<'_> {
             .basis
             .iter()
             .map(|b| spread(&mut b.iter().map(|&(p, _)| p)));
-        // The prior's stencils reach two rows on, or one row and one column
-        // (`field_residuals`).
-        basis.max().unwrap_or(0).max(2 * self.grid.1).max(self.grid.1 + 1)
+        // The prior's stencils reach two rows on at most (`field_residuals`; one row and one
+        // column is less).
+        basis.max().unwrap_or(0).max(2 * self.grid.1)
     }
 
     /// The held-out photos' disagreement with the others at `state`: per sample two of the
@@ -2975,13 +2975,13 @@ impl FaceSpace {
     ) -> Result<(State, usize, Level<'a>), FaceError> {
         let mut state = problem.start.clone();
         // The field joins at the finest `field_levels` levels, from zero.
-        let field = std::mem::take(&mut state.field);
+        let mut field = std::mem::take(&mut state.field);
         let field_from = options.levels.saturating_sub(options.field_levels);
         let mut iterations = 0;
         let mut finest = None;
         for level_index in 0..options.levels {
             if level_index == field_from {
-                state.field = field.clone();
+                state.field = std::mem::take(&mut field);
             }
             let mut level = self.level(reference, problem, &state, level_index, options)?;
             if let Some(held_out) = held_out {
