@@ -286,6 +286,25 @@ pub struct RefineOptions {
     /// On the scan the shared shift takes up identity shape (the scan's nose and cheeks) that
     /// the neutral output then drops; the rendered subjects' expressions are the space's own
     /// blendshapes, which flatters the option.
+    ///
+    /// Measured again with the displacement field ([`RefineOptions::field`], the default since;
+    /// `photo_eval --expressions --expression-oracle --seeds 2 --counts 3,8 --methods
+    /// "default,refine shift 1,landmarks only"` and `--methods "default,refine shift 0.25"`;
+    /// `photo_eval --methods "refine shift 1,refine shift 0.25"`: the mean ratio to the mean
+    /// face for 2 / 3 / 4 / 8 / 16 photos, the scan's 15 sets and its `photos-8`):
+    ///
+    /// | `τ_δ` | smile | jaw open | 2 / 3 / 4 / 8 / 16 | the scan | its `photos-8` |
+    /// |---|---|---|---|---|---|
+    /// | **`None`** | 1.12 / 1.22 | 1.09 / 1.19 | 0.78 / 0.72 / 0.70 / 0.66 / 0.62 | 0.834 | 0.83 |
+    /// | 0.25 | 1.10 / 1.14 | 1.07 / 1.18 | 0.78 / 0.71 / 0.71 / 0.66 / 0.63 | 0.847 | 0.88 |
+    /// | 1 | 1.09 / 1.11 | 1.09 / 1.17 | 0.81 / 0.72 / 0.72 / 0.65 / 0.63 | 0.875 | 0.91 |
+    ///
+    /// What the expressive photos lack is their expression: the landmark fit finds about
+    /// half of a smile of 0.7 and of an open jaw of 0.35, and refined with every photo's true
+    /// expression instead, the expressive photos give the neutral identity about as well as
+    /// neutral photos do (`tools/results/expressions.md`, its oracle section). The shift moves
+    /// a smile part of the way (0.23 to 0.44 on one subject's eight photos) and an open jaw
+    /// hardly at all.
     pub expression_shift: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements

@@ -12,7 +12,7 @@
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
 //! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]
-//! [--flat-light] [--windows KEYS]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--flat-light] [--windows KEYS] [--expressions [--expression-oracle]]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
 #[path = "../common/mod.rs"]
@@ -66,6 +66,9 @@ struct Args {
     flat_light: bool,
     /// `--windows`: the windows `--from-truth` compares (their keys; empty: all).
     windows: Vec<String>,
+    /// `--expression-oracle`: with `--expressions`, refine the first method's sets again with
+    /// the true expressions.
+    expression_oracle: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -89,6 +92,7 @@ fn parse_args() -> Result<Args> {
         from_truth: false,
         flat_light: false,
         windows: Vec::new(),
+        expression_oracle: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -108,6 +112,7 @@ fn parse_args() -> Result<Args> {
             "--calibrate" => args.calibrate = Some(value()?.into()),
             "--perspective" => args.perspective = true,
             "--expressions" => args.expressions = true,
+            "--expression-oracle" => args.expression_oracle = true,
             "--model" => args.model = value()?.into(),
             "--data" => args.data = value()?.into(),
             "--ict" => args.ict = value()?.into(),
@@ -421,7 +426,6 @@ fn from_truth(
         .filter(|a| args.windows.is_empty() || args.windows.iter().any(|w| w == a.0))
         .map(|(_, title, window, eyes, beta, field)| (title.as_str(), *window, *eyes, *beta, *field))
         .collect();
-    let units = landmark_only.units;
     let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
     let mut page = format!(
         "# The refinement started from the truth\n\nMade by `{}`. The face space: the first {} identity modes. \
@@ -443,58 +447,14 @@ fn from_truth(
     for set in sets {
         let subject = &subjects[set.subject];
         let (inputs, _) = set_inputs(set, landmarks)?;
-        let Ok(result) = reconstruct(&inputs, &chosen, &landmark_only, |_| {}) else {
+        let Some(fitted) = FitViews::new(&inputs, &chosen, &landmark_only)? else {
             continue;
         };
-        let fit = result.space.as_ref().context("a face-space fit")?;
-        let kept: Vec<&Input> = result
-            .photo_fits
-            .iter()
-            .map(|f| {
-                inputs
-                    .iter()
-                    .find(|i| i.points.name == f.name)
-                    .context("a kept photo")
-            })
-            .collect::<Result<_>>()?;
-        let points: Vec<Vec<Point2<Real>>> = kept
-            .iter()
-            .zip(&fit.outline_shifts)
-            .map(|(input, shifts)| {
-                input
-                    .points
-                    .y_up()
-                    .iter()
-                    .zip(shifts)
-                    .map(|(p, s)| p + s)
-                    .collect()
-            })
-            .collect();
-        let views: Vec<RefineView<'_>> = kept
-            .iter()
-            .zip(&points)
-            .map(|(input, points)| RefineView {
-                image: &input.image.as_ref().expect("given").grey,
-                points,
-            })
-            .collect();
+        let fit = fitted.fit()?;
+        let views = fitted.views(&inputs);
         let baseline = baselines[set.subject].distance.mean;
-        // A face of the space, displaced by a refinement's field (when it has one).
-        let scored_displaced = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| -> Result<Real> {
-            let mut face = space.face(&chosen, w)?;
-            if !displacement.is_empty() {
-                face = face.displaced(displacement)?;
-            }
-            let mesh = face
-                .mesh(&landmark_only.mesh)?
-                .mesh
-                .transformed(&units.transform());
-            let structure: Vec<Point3<Real>> = space
-                .structure(w)?
-                .iter()
-                .map(|p| p * units.per_canonical_unit())
-                .collect();
-            Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
+        let scored_displaced = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| {
+            scored_member(&chosen, &landmark_only, subject, baseline, w, displacement)
         };
         let scored = |w: &[Real]| scored_displaced(w, &[]);
         // An ICT subject's truth lies in the space; the scan's stand-in is the space fitted
@@ -1261,7 +1221,11 @@ fn expressions(
     // errors[method][variant][count index]: (ratio to the mean face, error mm) per set.
     let mut table = String::new();
     let mut paired = String::new();
-    for method in methods {
+    // oracles[variant][count index], with the first method's sets (`--expression-oracle`).
+    let mut oracles: Vec<Vec<Vec<Oracle>>> = (0..variants.len())
+        .map(|_| args.counts.iter().map(|_| Vec::new()).collect())
+        .collect();
+    for (m, method) in methods.iter().enumerate() {
         let chosen_reference = method.reference(reference, args.space_modes)?;
         let mut errors: Vec<Vec<Vec<Real>>> = vec![vec![Vec::new(); args.counts.len()]; variants.len()];
         let mut baselines: Vec<Real> = Vec::new();
@@ -1287,6 +1251,14 @@ fn expressions(
                                 })
                                 .collect(),
                         };
+                        if args.expression_oracle && m == 0 {
+                            let truth: &[(&str, Real)] = if v == 0 { &[] } else { EXPRESSIONS[v - 1].1 };
+                            if let Some(o) =
+                                expression_oracle(&set, subject, truth, landmarks, &chosen_reference, baseline)?
+                            {
+                                oracles[v][c].push(o);
+                            }
+                        }
                         let (outcome, _) =
                             run_set(&set, subject, landmarks, &chosen_reference, &method.options)?;
                         errors[v][c].push(outcome.score.map_or(Real::NAN, |s| s.distance.mean / baseline));
@@ -1312,6 +1284,11 @@ fn expressions(
         eprintln!("{}: done ({:.0} s)", method.name, started.elapsed().as_secs_f64());
     }
     let counts: Vec<String> = args.counts.iter().map(|c| format!("{c} photos")).collect();
+    let oracle = if args.expression_oracle {
+        oracle_table(&variants, &args.counts, &oracles)?
+    } else {
+        String::new()
+    };
     let page = format!(
         "# Expressions: the neutral identity from expressive photos\n\n\
          Made by `{}` (tools/photo_eval --expressions) in {:.0} s. {} ICT-FaceKit identities (as in photos.md: \
@@ -1323,7 +1300,7 @@ fn expressions(
          ## Mean ratio to the mean face\n\n\
          | method | photos of | {} |\n|---|---|{}\n{table}\n\
          ## Expressive against neutral photos: mean over sets of error(expressive) / error(neutral)\n\n\
-         | method | {} |\n|---|{}\n{paired}",
+         | method | {} |\n|---|{}\n{paired}{oracle}",
         command_line(),
         started.elapsed().as_secs_f64(),
         args.ict_subjects,
@@ -1347,6 +1324,206 @@ fn expressions(
     std::fs::write(&path, page)?;
     eprintln!("wrote {}", path.display());
     Ok(())
+}
+
+/// A set's landmark fit as the refinement takes it: the pipeline's result without the
+/// refinement, the photos its fit kept (indices into the inputs) and each one's points moved
+/// by the fit's outline shifts (as the pipeline hands them to [`FaceSpace::refine_photos`]).
+///
+/// [`FaceSpace::refine_photos`]: splineface::face::FaceSpace::refine_photos
+struct FitViews {
+    result: Reconstruction,
+    kept: Vec<usize>,
+    points: Vec<Vec<Point2<Real>>>,
+}
+
+impl FitViews {
+    /// `None` when the pipeline fails on the set.
+    fn new(inputs: &[Input], reference: &ReferenceFace, landmark_only: &PipelineOptions) -> Result<Option<Self>> {
+        let Ok(result) = reconstruct(inputs, reference, landmark_only, |_| {}) else {
+            return Ok(None);
+        };
+        let fit = result.space.as_ref().context("a face-space fit")?;
+        let kept: Vec<usize> = result
+            .photo_fits
+            .iter()
+            .map(|f| {
+                inputs
+                    .iter()
+                    .position(|i| i.points.name == f.name)
+                    .context("a kept photo")
+            })
+            .collect::<Result<_>>()?;
+        let points = kept
+            .iter()
+            .zip(&fit.outline_shifts)
+            .map(|(&k, shifts)| {
+                inputs[k]
+                    .points
+                    .y_up()
+                    .iter()
+                    .zip(shifts)
+                    .map(|(p, s)| p + s)
+                    .collect()
+            })
+            .collect();
+        Ok(Some(FitViews { result, kept, points }))
+    }
+
+    fn fit(&self) -> Result<&PhotoSpaceFit> {
+        self.result.space.as_ref().context("a face-space fit")
+    }
+
+    /// The kept photos' views, as the refinement takes them.
+    fn views<'a>(&'a self, inputs: &'a [Input]) -> Vec<RefineView<'a>> {
+        self.kept
+            .iter()
+            .zip(&self.points)
+            .map(|(&k, points)| RefineView {
+                image: &inputs[k].image.as_ref().expect("photos with images").grey,
+                points,
+            })
+            .collect()
+    }
+}
+
+/// A member of `reference`'s face space (identity weights `w`, displaced by a refinement's
+/// field when `displacement` is not empty), meshed and scored against `subject` as the
+/// pipeline's output is under `options`, over the mean face's error `baseline`.
+fn scored_member(
+    reference: &ReferenceFace,
+    options: &PipelineOptions,
+    subject: &Subject,
+    baseline: Real,
+    w: &[Real],
+    displacement: &[nalgebra::Vector3<Real>],
+) -> Result<Real> {
+    let space = reference.face_space().context("the reference has no face space")?;
+    let mut face = space.face(reference, w)?;
+    if !displacement.is_empty() {
+        face = face.displaced(displacement)?;
+    }
+    let mesh = face
+        .mesh(&options.mesh)?
+        .mesh
+        .transformed(&options.units.transform());
+    let structure: Vec<Point3<Real>> = space
+        .structure(w)?
+        .iter()
+        .map(|p| p * options.units.per_canonical_unit())
+        .collect();
+    Ok(score(&mesh, &structure, subject)?.distance.mean / baseline)
+}
+
+/// `--expression-oracle`'s figures for one set: the landmark fit, the default refinement of
+/// it, the same refinement with every photo's expression set to the truth, and the mean
+/// weight the landmark fit gave the true expression's modes (`None` for neutral photos).
+struct Oracle {
+    landmark_fit: Real,
+    refined: Real,
+    refined_true_expression: Real,
+    found: Option<Real>,
+}
+
+/// `--expression-oracle`'s section of `expressions.md`: per variant and count, the mean ratios
+/// to the mean face of the landmark fit, its refinement and its refinement with the true
+/// expressions, the expressive sets' over the neutral ones (paired by set), and the weight
+/// the landmark fit found for the expression.
+fn oracle_table(variants: &[&str], counts: &[usize], oracles: &[Vec<Vec<Oracle>>]) -> Result<String> {
+    let mut out = String::from(
+        "\n## The expression the landmark fit finds, and the refinement given the true one (`--expression-oracle`)\n\n\
+         The first method's sets, refined by `FaceSpace::refine_photos` with the default options from the landmark \
+         fit (the pipeline without the refinement) with the expressions that fit found, and again with every \
+         photo's expression set to the truth. Mean ratio to the mean face; in brackets, the mean over sets of the \
+         error from expressive photos over the error from the neutral ones; the mean weight the landmark fit gave \
+         the expression's blendshapes (the truth in brackets).\n\n\
+         | photos of | photos | landmark fit | refined | refined, true expression | expression found |\n\
+         |---|---|---|---|---|---|\n",
+    );
+    for (v, variant) in variants.iter().enumerate() {
+        for (c, count) in counts.iter().enumerate() {
+            let sets = &oracles[v][c];
+            let neutral = &oracles[0][c];
+            let paired = |f: fn(&Oracle) -> Real| -> String {
+                let mean = mean_of(sets.iter().map(f));
+                if v == 0 || sets.len() != neutral.len() {
+                    return format!("{mean:.2}");
+                }
+                let ratio = mean_of(sets.iter().zip(neutral).map(|(e, n)| f(e) / f(n)));
+                format!("{mean:.2} ({ratio:.2})")
+            };
+            let found = match (v, sets.iter().filter_map(|o| o.found).collect::<Vec<_>>()) {
+                (0, _) => "".to_owned(),
+                (_, found) => {
+                    let truth = EXPRESSIONS[v - 1].1;
+                    let truth = truth.iter().map(|t| t.1).sum::<Real>() / truth.len() as Real;
+                    format!("{:.2} ({truth:.2})", mean_of(found.into_iter()))
+                }
+            };
+            writeln!(
+                out,
+                "| {variant} | {count} | {} | {} | {} | {found} |",
+                paired(|o| o.landmark_fit),
+                paired(|o| o.refined),
+                paired(|o| o.refined_true_expression),
+            )?;
+        }
+    }
+    Ok(out)
+}
+
+/// The landmark fit of `set` refined twice: with the expressions the fit found and with the
+/// true ones (`truth`, blendshape weights by name; empty for neutral photos). `None` when the
+/// pipeline fails on the set.
+fn expression_oracle(
+    set: &Set<'_>,
+    subject: &Subject,
+    truth: &[(&str, Real)],
+    landmarks: &mut Landmarks<'_>,
+    reference: &ReferenceFace,
+    baseline: Real,
+) -> Result<Option<Oracle>> {
+    let space = reference.face_space().context("the reference has no face space")?;
+    let landmark_only = PipelineOptions {
+        refine: None,
+        ..PipelineOptions::default()
+    };
+    let weights = splineface::structure::contour_weighted(landmark_only.depth.contour_weight);
+    let (inputs, _) = set_inputs(set, landmarks)?;
+    let Some(fitted) = FitViews::new(&inputs, reference, &landmark_only)? else {
+        return Ok(None);
+    };
+    let fit = fitted.fit()?;
+    let views = fitted.views(&inputs);
+    let true_weights: Vec<Real> = fit
+        .expression_names
+        .iter()
+        .map(|n| truth.iter().find(|t| t.0 == n).map_or(0.0, |t| t.1))
+        .collect();
+    let with_truth = PhotoSpaceFit {
+        expressions: fit.expressions.iter().map(|_| true_weights.clone()).collect(),
+        ..fit.clone()
+    };
+    let options = RefineOptions::default();
+    let refined = space.refine_photos(reference, fit, &views, &weights, &options)?;
+    let oracle = space.refine_photos(reference, &with_truth, &views, &weights, &options)?;
+    let scored = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| {
+        scored_member(reference, &landmark_only, subject, baseline, w, displacement)
+    };
+    let modes: Vec<usize> = truth
+        .iter()
+        .filter_map(|t| fit.expression_names.iter().position(|n| n == t.0))
+        .collect();
+    let found = (!modes.is_empty()).then(|| {
+        let sum: Real = fit.expressions.iter().flat_map(|e| modes.iter().map(|&l| e[l])).sum();
+        sum / (modes.len() * fit.expressions.len()) as Real
+    });
+    Ok(Some(Oracle {
+        landmark_fit: scored(&fit.weights, &[])?,
+        refined: scored(&refined.weights, &refined.displacement)?,
+        refined_true_expression: scored(&oracle.weights, &oracle.displacement)?,
+        found,
+    }))
 }
 
 /// The methods compared: the default first, then one change from it each.
@@ -1584,6 +1761,10 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method(
             "refine shift 0.5",
             refined_with(&|o| o.expression_shift = Some(0.5)),
+        ),
+        method(
+            "refine shift 1",
+            refined_with(&|o| o.expression_shift = Some(1.0)),
         ),
         method("refine photo weights", refined_with(&|o| o.photo_weights = true)),
         method(
