@@ -1691,11 +1691,13 @@ struct Level<'a> {
     /// Each photo's `κ` prior centre ([`Problem::perspective_prior`]).
     perspective_prior: &'a [Real],
     options: &'a RefineOptions,
-    /// The control grid's rows and columns.
-    grid: (usize, usize),
     /// Each photo's weight ([`RefineOptions::photo_weights`]; all 1 otherwise), folded into
     /// its visibility.
     photo_weights: Vec<Real>,
+    /// The field's prior's stencils ([`field_stencils`]; empty when the level fits no field).
+    field_stencils: Vec<Vec<(usize, Real)>>,
+    /// The field block's half-bandwidth ([`field_bandwidth`]; 0 without a field).
+    field_bandwidth: usize,
     /// Hold the face (identity weights and field): only the cameras move.
     face_held: bool,
     /// Per photo, hold its camera (empty: none held).
@@ -2110,7 +2112,7 @@ impl Level<'_> {
             .zip(self.sigma_prior)
             .map(|(w, s)| (w / s).powi(2))
             .sum();
-        let field: Real = self.field_residuals(state).iter().map(|(_, r)| r * r).sum();
+        let field: Real = self.field_residuals(state).map(|r| r * r).sum();
         identity
             + field
             + state
@@ -2121,51 +2123,12 @@ impl Level<'_> {
                 .sum::<Real>()
     }
 
-    /// The field's prior as residuals, each with its stencil over the control points (scaled
-    /// by the deviations): the thin plate's second differences along rows, columns and
-    /// across, and each point's ridge.
-    fn field_residuals(&self, state: &State) -> Vec<(Vec<(usize, Real)>, Real)> {
-        if state.field.is_empty() {
-            return Vec::new();
-        }
-        let (rows, cols) = self.grid;
-        let bend = 1.0 / self.options.field_bend;
-        let ridge = 1.0 / self.options.field_sigma;
-        let at = |i: usize, j: usize| i * cols + j;
-        let mut out = Vec::new();
-        let mut push = |stencil: Vec<(usize, Real)>| {
-            let r = stencil.iter().map(|&(c, v)| v * state.field[c]).sum::<Real>();
-            out.push((stencil, r));
-        };
-        for i in 0..rows {
-            for j in 0..cols {
-                push(vec![(at(i, j), ridge)]);
-                if i + 2 < rows {
-                    push(vec![
-                        (at(i, j), bend),
-                        (at(i + 1, j), -2.0 * bend),
-                        (at(i + 2, j), bend),
-                    ]);
-                }
-                if j + 2 < cols {
-                    push(vec![
-                        (at(i, j), bend),
-                        (at(i, j + 1), -2.0 * bend),
-                        (at(i, j + 2), bend),
-                    ]);
-                }
-                if i + 1 < rows && j + 1 < cols {
-                    let t = std::f64::consts::SQRT_2 * bend;
-                    push(vec![
-                        (at(i, j), t),
-                        (at(i + 1, j), -t),
-                        (at(i, j + 1), -t),
-                        (at(i + 1, j + 1), t),
-                    ]);
-                }
-            }
-        }
-        out
+    /// The field's prior's residuals at `state`, one per stencil of [`Level::field_stencils`]
+    /// (none without a field).
+    fn field_residuals<'s>(&'s self, state: &'s State) -> impl Iterator<Item = Real> + 's {
+        self.field_stencils
+            .iter()
+            .map(|stencil| stencil.iter().map(|&(c, v)| v * state.field[c]).sum::<Real>())
     }
 
     /// Adds one sample's consistency residuals to the normal equations (the dense block's
@@ -2313,7 +2276,7 @@ impl Level<'_> {
         let k = state.weights.len();
         let n = state.unknowns();
         let field = k + CAMERA * state.cameras.len();
-        let bandwidth = self.field_bandwidth(state);
+        let bandwidth = self.field_bandwidth;
         let zeros = || Equations::zeros(field, n - field, bandwidth);
         let scale = self.options.beta / (self.options.sigma * self.options.sigma);
         let c = 2.0 * self.options.sigma;
@@ -2358,8 +2321,8 @@ impl Level<'_> {
             }
         }
         equations.fill_lower();
-        for (stencil, residual) in self.field_residuals(state) {
-            for &(a, va) in &stencil {
+        for (stencil, residual) in self.field_stencils.iter().zip(self.field_residuals(state)) {
+            for &(a, va) in stencil {
                 equations.g[field + a] += va * residual;
                 for &(b, vb) in stencil.iter().filter(|(b, _)| *b <= a) {
                     equations.add_field(a, b, va * vb);
@@ -2398,27 +2361,6 @@ impl Level<'_> {
             + self.landmarks.cost(state, self.options)
             + self.prior(state);
         (equations, cost)
-    }
-
-    /// The half-bandwidth of the field's block of the normal equations: the widest spread of
-    /// control points that one sample's basis or one of the prior's stencils couples (0
-    /// without a field).
-    fn field_bandwidth(&self, state: &State) -> usize {
-        if state.field.is_empty() {
-            return 0;
-        }
-        let spread = |points: &mut dyn Iterator<Item = usize>| {
-            let (lo, hi) = points.fold((usize::MAX, 0), |(lo, hi), p| (lo.min(p), hi.max(p)));
-            hi.saturating_sub(lo)
-        };
-        let basis = self
-            .samples
-            .basis
-            .iter()
-            .map(|b| spread(&mut b.iter().map(|&(p, _)| p)));
-        // The prior's stencils reach two rows on at most (`field_residuals`; one row and one
-        // column is less).
-        basis.max().unwrap_or(0).max(2 * self.grid.1)
     }
 
     /// The held-out photos' disagreement with the others at `state`: per sample two of the
@@ -2778,6 +2720,59 @@ impl FaceSpace {
     }
 }
 
+/// The field's prior as stencils over the control points of a `grid` (rows, columns), scaled by
+/// the deviations: each point's ridge under [`RefineOptions::field_sigma`], and the thin
+/// plate's second differences along rows, columns and across under
+/// [`RefineOptions::field_bend`]. A residual is a stencil's weighted sum of the field.
+fn field_stencils((rows, cols): (usize, usize), options: &RefineOptions) -> Vec<Vec<(usize, Real)>> {
+    let bend = 1.0 / options.field_bend;
+    let ridge = 1.0 / options.field_sigma;
+    let at = |i: usize, j: usize| i * cols + j;
+    let mut out = Vec::new();
+    for i in 0..rows {
+        for j in 0..cols {
+            out.push(vec![(at(i, j), ridge)]);
+            if i + 2 < rows {
+                out.push(vec![
+                    (at(i, j), bend),
+                    (at(i + 1, j), -2.0 * bend),
+                    (at(i + 2, j), bend),
+                ]);
+            }
+            if j + 2 < cols {
+                out.push(vec![
+                    (at(i, j), bend),
+                    (at(i, j + 1), -2.0 * bend),
+                    (at(i, j + 2), bend),
+                ]);
+            }
+            if i + 1 < rows && j + 1 < cols {
+                let t = std::f64::consts::SQRT_2 * bend;
+                out.push(vec![
+                    (at(i, j), t),
+                    (at(i + 1, j), -t),
+                    (at(i, j + 1), -t),
+                    (at(i + 1, j + 1), t),
+                ]);
+            }
+        }
+    }
+    out
+}
+
+/// The half-bandwidth of the field's block of the normal equations: the widest spread of
+/// control points that one sample's basis (`basis[s]`) or one of the prior's stencils couples.
+fn field_bandwidth(basis: &[Vec<(usize, Real)>], cols: usize) -> usize {
+    let spread = |points: &mut dyn Iterator<Item = usize>| {
+        let (lo, hi) = points.fold((usize::MAX, 0), |(lo, hi), p| (lo.min(p), hi.max(p)));
+        hi.saturating_sub(lo)
+    };
+    let widest = basis.iter().map(|b| spread(&mut b.iter().map(|&(p, _)| p)));
+    // The prior's stencils reach two rows on at most (`field_stencils`; one row and one
+    // column is less).
+    widest.max().unwrap_or(0).max(2 * cols)
+}
+
 /// What every level of a refinement shares: the starting state, the landmarks' problem, each
 /// photo's expression as a displacement of the control grid, and the photos' face boxes.
 struct Problem<'a> {
@@ -2961,6 +2956,15 @@ impl FaceSpace {
             },
         );
         let samples = samples?;
+        let grid = (self.surfaces().base().rows(), self.surfaces().base().cols());
+        let (field_stencils, field_bandwidth) = if state.field.is_empty() {
+            (Vec::new(), 0)
+        } else {
+            (
+                field_stencils(grid, options),
+                field_bandwidth(&samples.basis, grid.1),
+            )
+        };
         let mut level = Level {
             images,
             samples,
@@ -2969,7 +2973,8 @@ impl FaceSpace {
             shift_limits: &problem.shift_limits,
             perspective_prior: &problem.perspective_prior,
             options,
-            grid: (self.surfaces().base().rows(), self.surfaces().base().cols()),
+            field_stencils,
+            field_bandwidth,
             photo_weights: vec![1.0; problem.start.cameras.len()],
             face_held: false,
             cameras_held: Vec::new(),

@@ -1253,9 +1253,14 @@ fn expressions(
                         };
                         if args.expression_oracle && m == 0 {
                             let truth: &[(&str, Real)] = if v == 0 { &[] } else { EXPRESSIONS[v - 1].1 };
-                            if let Some(o) =
-                                expression_oracle(&set, subject, truth, landmarks, &chosen_reference, baseline)?
-                            {
+                            if let Some(o) = expression_oracle(
+                                &set,
+                                subject,
+                                truth,
+                                landmarks,
+                                &chosen_reference,
+                                baseline,
+                            )? {
                                 oracles[v][c].push(o);
                             }
                         }
@@ -1339,7 +1344,11 @@ struct FitViews {
 
 impl FitViews {
     /// `None` when the pipeline fails on the set.
-    fn new(inputs: &[Input], reference: &ReferenceFace, landmark_only: &PipelineOptions) -> Result<Option<Self>> {
+    fn new(
+        inputs: &[Input],
+        reference: &ReferenceFace,
+        landmark_only: &PipelineOptions,
+    ) -> Result<Option<Self>> {
         let Ok(result) = reconstruct(inputs, reference, landmark_only, |_| {}) else {
             return Ok(None);
         };
@@ -1398,7 +1407,9 @@ fn scored_member(
     w: &[Real],
     displacement: &[nalgebra::Vector3<Real>],
 ) -> Result<Real> {
-    let space = reference.face_space().context("the reference has no face space")?;
+    let space = reference
+        .face_space()
+        .context("the reference has no face space")?;
     let mut face = space.face(reference, w)?;
     if !displacement.is_empty() {
         face = face.displaced(displacement)?;
@@ -1483,7 +1494,9 @@ fn expression_oracle(
     reference: &ReferenceFace,
     baseline: Real,
 ) -> Result<Option<Oracle>> {
-    let space = reference.face_space().context("the reference has no face space")?;
+    let space = reference
+        .face_space()
+        .context("the reference has no face space")?;
     let landmark_only = PipelineOptions {
         refine: None,
         ..PipelineOptions::default()
@@ -1515,7 +1528,11 @@ fn expression_oracle(
         .filter_map(|t| fit.expression_names.iter().position(|n| n == t.0))
         .collect();
     let found = (!modes.is_empty()).then(|| {
-        let sum: Real = fit.expressions.iter().flat_map(|e| modes.iter().map(|&l| e[l])).sum();
+        let sum: Real = fit
+            .expressions
+            .iter()
+            .flat_map(|e| modes.iter().map(|&l| e[l]))
+            .sum();
         sum / (modes.len() * fit.expressions.len()) as Real
     });
     Ok(Some(Oracle {
