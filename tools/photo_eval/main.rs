@@ -636,15 +636,20 @@ fn run_set(
                         .map(|(w, s)| (w / s).powi(2))
                         .sum::<Real>()
                 });
+                let field_rms = (r.displacement.iter().map(|d| d.norm_squared()).sum::<Real>()
+                    / r.displacement.len().max(1) as Real)
+                    .sqrt();
                 eprintln!(
-                    "DIAG\t{}\t{}\t{landmark_only:.4}\t{:.4}\t{:.4}\t{:.4}\t{:.3}\t{:.3}\t{prior:.2}",
+                    "DIAG\t{}\t{}\t{landmark_only:.4}\t{:.4}\t{:.4}\t{:.4}\t{:.3}\t{:.3}\t{prior:.2}\t{field_rms:.3}\t{:.2}\t{}",
                     set.subject,
                     result.depth.photos.len(),
                     s.distance.mean,
                     r.disagreement.0,
                     r.disagreement.1,
                     r.landmark_rms.0,
-                    r.landmark_rms.1
+                    r.landmark_rms.1,
+                    r.share,
+                    set.label
                 );
                 if let Some((b, a)) = r.held_out {
                     eprintln!(
