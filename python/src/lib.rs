@@ -836,6 +836,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             "expressions" => s.expressions = flag(&value)?,
             "outline" => s.outline = flag(&value)?,
             "refine" => s.refine = flag(&value)?,
+            "displacement" => s.displacement = flag(&value)?,
             "deformation" => s.deformation = text(&value)?,
             "spacing" => s.spacing = number(&value)?,
             "depth_size" => s.depth_size = count(&value)?,
@@ -850,8 +851,8 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             _ => {
                 return Err(PyTypeError::new_err(format!(
                     "unexpected keyword argument '{key}' (the settings are units, eye_distance, shape, \
-                     space_noise, expression_sigma, expressions, outline, refine, deformation, spacing, depth_size, \
-                     texture_size, min_photos)"
+                     space_noise, expression_sigma, expressions, outline, refine, displacement, deformation, \
+                     spacing, depth_size, texture_size, min_photos)"
                 )));
             }
         }

@@ -28,6 +28,10 @@ pub struct Settings {
     pub outline: bool,
     /// Refine the face with the photos' pixels ([`PipelineOptions::refine`]).
     pub refine: bool,
+    /// With `refine`, also fit a depth displacement of every control point, the detail the
+    /// face space cannot carry ([`crate::face::RefineOptions::field`]); else the refinement
+    /// moves the space's weights and the cameras alone.
+    pub displacement: bool,
     /// The deformation of `shape = "deformed"`: `local` or `affine`.
     pub deformation: String,
     /// Mesh vertex spacing, canonical units (0.1 to 20).
@@ -52,6 +56,7 @@ impl Default for Settings {
             expressions: true,
             outline: true,
             refine: true,
+            displacement: true,
             deformation: "local".into(),
             spacing: 1.0,
             depth_size: 512,
@@ -157,11 +162,13 @@ impl Settings {
                 size: self.texture_size,
                 ..TextureOptions::default()
             },
-            refine: if self.refine {
-                PipelineOptions::default().refine
-            } else {
-                None
-            },
+            refine: PipelineOptions::default()
+                .refine
+                .filter(|_| self.refine)
+                .map(|r| crate::face::RefineOptions {
+                    field: self.displacement,
+                    ..r
+                }),
             ..PipelineOptions::default()
         })
     }
@@ -174,6 +181,31 @@ mod tests {
     #[test]
     fn the_default_settings_are_the_default_options() {
         assert_eq!(Settings::default().options(), Ok(PipelineOptions::default()));
+    }
+
+    #[test]
+    fn the_displacement_setting_turns_the_refinements_field_off_alone() {
+        let refine = |settings: Settings| settings.options().map(|o| o.refine);
+        let without = refine(Settings {
+            displacement: false,
+            ..Settings::default()
+        })
+        .expect("valid settings")
+        .expect("a refinement");
+        assert!(!without.field);
+        assert_eq!(
+            crate::face::RefineOptions {
+                field: true,
+                ..without
+            },
+            crate::face::RefineOptions::default()
+        );
+        let unrefined = Settings {
+            refine: false,
+            displacement: true,
+            ..Settings::default()
+        };
+        assert_eq!(refine(unrefined), Ok(None));
     }
 
     #[test]

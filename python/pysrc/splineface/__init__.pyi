@@ -38,6 +38,7 @@ class _Settings(TypedDict, total=False):
     expressions: bool  # fit an expression per photo [True]
     outline: bool  # measure the jaw's landmarks against the face's outline in each photo [True]
     refine: bool  # refine with the photos' pixels [True]
+    displacement: bool  # with refine, also fit a depth displacement of the control grid [True]
     deformation: str  # "local" ["local"] or "affine", for shape="deformed"
     spacing: float  # mesh vertex spacing, canonical units, 0.1 to 20 [1]
     depth_size: int  # the depth map's larger side, pixels [512]
