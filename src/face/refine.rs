@@ -804,6 +804,19 @@ pub struct Refinement {
     pub note: String,
 }
 
+impl Refinement {
+    /// The largest and the RMS length of [`Refinement::displacement`] over the control points
+    /// (canonical units); `None` without a displacement.
+    pub fn displacement_size(&self) -> Option<(Real, Real)> {
+        if self.displacement.is_empty() {
+            return None;
+        }
+        let max = self.displacement.iter().map(|d| d.norm()).fold(0.0, Real::max);
+        let squares: Real = self.displacement.iter().map(|d| d.norm_squared()).sum();
+        Some((max, (squares / self.displacement.len() as Real).sqrt()))
+    }
+}
+
 /// Where on the face the photos agree: per sample of the finest level, laid on the frontal
 /// sampling grid, the weighted RMS of the photos' normalised intensities about their mean.
 #[derive(Debug, Clone, PartialEq)]

@@ -615,6 +615,21 @@ pub struct PhotoSpaceFit {
     pub outline_shifts: Vec<Vec<Vector2<Real>>>,
 }
 
+impl PhotoSpaceFit {
+    /// Photo `photo`'s points (`y` up) moved by its [`PhotoSpaceFit::outline_shifts`], the jaw
+    /// points onto the face's outline where the fit measured them: the points
+    /// [`FaceSpace::refine_photos`] takes. Unchanged when the outline was not used.
+    pub fn outline_points(&self, photo: usize, points: &[Point2<Real>]) -> Vec<Point2<Real>> {
+        let mut moved = points.to_vec();
+        if let Some(shifts) = self.outline_shifts.get(photo) {
+            for (p, s) in moved.iter_mut().zip(shifts) {
+                *p += s;
+            }
+        }
+        moved
+    }
+}
+
 /// How many prior deviations a fitted weight may reach before [`FaceSpace::fit_photos`] holds
 /// it there: a weight beyond 3σ is more likely the landmarks' error than the face (each mode's
 /// prior puts 0.3% of faces there).

@@ -618,12 +618,8 @@ impl Reconstruction {
             coverage: r.coverage.clone(),
             disagreement_after: r.disagreement.1,
             disagreement_before: r.disagreement.0,
-            field_max_units: (!r.displacement.is_empty())
-                .then(|| r.displacement.iter().map(|d| d.norm()).fold(0.0, Real::max)),
-            field_rms_units: (!r.displacement.is_empty()).then(|| {
-                (r.displacement.iter().map(|d| d.norm_squared()).sum::<Real>() / r.displacement.len() as Real)
-                    .sqrt()
-            }),
+            field_max_units: r.displacement_size().map(|(max, _)| max),
+            field_rms_units: r.displacement_size().map(|(_, rms)| rms),
             held_out_after: r.held_out.map(|h| h.1),
             held_out_before: r.held_out.map(|h| h.0),
             iterations: r.iterations,

@@ -789,15 +789,15 @@ fn space_face(
         kept,
         with_images,
     } = *photos;
-    let mut views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
+    let views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
     let weights = crate::structure::contour_weighted(options.depth.contour_weight);
     let mut fit = space.fit_photos(&views, &weights, fit_options)?;
     // The refinement measures the jaw points against the outline the landmark fit found.
-    for (view, shifts) in views.iter_mut().zip(&fit.outline_shifts) {
-        for (p, s) in view.iter_mut().zip(shifts) {
-            *p += s;
-        }
-    }
+    let views: Vec<Vec<nalgebra::Point2<Real>>> = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| fit.outline_points(i, v))
+        .collect();
     timings.push(("face space".to_owned(), start.elapsed().as_secs_f64()));
     let mut refinement = None;
     if let (Some(refine), true) = (options.refine, with_images) {

@@ -636,9 +636,7 @@ fn run_set(
                         .map(|(w, s)| (w / s).powi(2))
                         .sum::<Real>()
                 });
-                let field_rms = (r.displacement.iter().map(|d| d.norm_squared()).sum::<Real>()
-                    / r.displacement.len().max(1) as Real)
-                    .sqrt();
+                let field_rms = r.displacement_size().map_or(0.0, |(_, rms)| rms);
                 eprintln!(
                     "DIAG\t{}\t{}\t{landmark_only:.4}\t{:.4}\t{:.4}\t{:.4}\t{:.3}\t{:.3}\t{prior:.2}\t{field_rms:.3}\t{:.2}\t{}",
                     set.subject,
@@ -1370,16 +1368,8 @@ impl FitViews {
             .collect::<Result<_>>()?;
         let points = kept
             .iter()
-            .zip(&fit.outline_shifts)
-            .map(|(&k, shifts)| {
-                inputs[k]
-                    .points
-                    .y_up()
-                    .iter()
-                    .zip(shifts)
-                    .map(|(p, s)| p + s)
-                    .collect()
-            })
+            .enumerate()
+            .map(|(i, &k)| fit.outline_points(i, &inputs[k].points.y_up()))
             .collect();
         Ok(Some(FitViews { result, kept, points }))
     }
