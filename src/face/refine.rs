@@ -1338,8 +1338,8 @@ struct Normaliser {
 }
 
 /// Every photo's [`Normaliser`]s at a state (`scales[i][s]`) and, for [`Window::Lit`],
-/// every sample's normal derivatives in the identity weights (`normal_modes[s][k]`, empty
-/// for the other windows).
+/// every sample's normal derivatives in the identity weights (`normal_modes[s][k]`; empty
+/// for the other windows, and each sample's empty where the cost alone is wanted).
 struct Normalisation {
     scales: Vec<Vec<Normaliser>>,
     normal_modes: Vec<Vec<Vector3<Real>>>,
@@ -1860,8 +1860,15 @@ impl Level<'_> {
     /// sample's neighbours that the photo sees: it covers the same part of the face in every
     /// photo however obliquely each sees it (a window in the image would not, and measurably
     /// biased the shape; [`Window::Image`]'s crops are normalised already). With
-    /// [`Window::Lit`], [`Level::lit`]'s.
-    fn normalisers(&self, state: &State, placed: &[Placed], visibility: &[Vec<Real>]) -> Normalisation {
+    /// [`Window::Lit`], [`Level::lit`]'s (with the normals' derivatives in the identity
+    /// weights when `derivatives`, which only the normal equations need).
+    fn normalisers(
+        &self,
+        state: &State,
+        placed: &[Placed],
+        visibility: &[Vec<Real>],
+        derivatives: bool,
+    ) -> Normalisation {
         let plain = |scales: Vec<Vec<Normaliser>>| Normalisation {
             scales,
             normal_modes: Vec::new(),
@@ -1894,7 +1901,7 @@ impl Level<'_> {
             })
             .collect();
         if self.options.window == Window::Lit {
-            return self.lit(state, &raw, visibility);
+            return self.lit(state, &raw, visibility, derivatives);
         }
         let shading = match self.options.window {
             Window::Shaded => fit_shading(&raw, visibility, &vec![&self.samples.normals[..]; raw.len()]),
@@ -1943,9 +1950,16 @@ impl Level<'_> {
     /// each photo's lighting fitted over the shape's own normals and divided out, then the
     /// photo's gain and bias (its visibility-weighted mean `mᵢ` and deviation `dᵢ` of
     /// `I / S` over the samples it sees): `N = (I / S − mᵢ) / dᵢ = (I − mᵢ S) / (S dᵢ)`, and
-    /// `∂N/∂n = −I / (S² dᵢ) · ∂S/∂n` ([`shading_of`]).
-    fn lit(&self, state: &State, raw: &[Vec<Option<Real>>], visibility: &[Vec<Real>]) -> Normalisation {
-        let ShapeNormals { identity, photos } = self.samples.shape_normals(state, true);
+    /// `∂N/∂n = −I / (S² dᵢ) · ∂S/∂n` ([`shading_of`]). The normals' derivatives
+    /// (`normal_modes`) are left empty without `derivatives`.
+    fn lit(
+        &self,
+        state: &State,
+        raw: &[Vec<Option<Real>>],
+        visibility: &[Vec<Real>],
+        derivatives: bool,
+    ) -> Normalisation {
+        let ShapeNormals { identity, photos } = self.samples.shape_normals(state, derivatives);
         let (normals, normal_modes): (Vec<Vector3<Real>>, Vec<Vec<Vector3<Real>>>) =
             identity.into_iter().unzip();
         // Each photo shaded over its own normals (its expression's); the identity's without
@@ -2070,7 +2084,7 @@ impl Level<'_> {
         f: impl Fn(&[Seen], Real, Real) -> T + Sync,
     ) -> Vec<Option<T>> {
         let placed = self.samples.placed(state);
-        let normalisation = self.normalisers(state, &placed, visibility);
+        let normalisation = self.normalisers(state, &placed, visibility, false);
         (0..self.samples.len())
             .into_par_iter()
             .map(|s| {
@@ -2285,7 +2299,7 @@ impl Level<'_> {
     /// the samples' order), taken in the same pass over the samples as the equations.
     fn normal_equations(&self, state: &State, visibility: &[Vec<Real>]) -> (Equations, Real) {
         let placed = self.samples.placed(state);
-        let normalisation = self.normalisers(state, &placed, visibility);
+        let normalisation = self.normalisers(state, &placed, visibility, true);
         let k = state.weights.len();
         let n = state.unknowns();
         let field = k + CAMERA * state.cameras.len();
