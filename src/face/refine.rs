@@ -3125,7 +3125,18 @@ fn face_boxes(views: &[RefineView<'_>]) -> Vec<[Real; 4]> {
 impl Level<'_> {
     /// Damped Gauss-Newton (Levenberg-Marquardt on the diagonal) from `state` on this level,
     /// `max_iterations` at most, each counted in `iterations`; stops when a step improves the
-    /// cost by less than 10⁻⁵ of it or no damping finds a better state.
+    /// cost by less than [`MIN_RELATIVE_GAIN`] of it or no damping finds a better state.
+    ///
+    /// Eight dampings are tried per iteration, each ten times the last, but the cost is not
+    /// taken for a step that cannot help: one the model says lowers the cost by less than a
+    /// tenth of [`MIN_RELATIVE_GAIN`] (taken, it would end the level; the search stops), or
+    /// one [`SAME_STEP`]-close to a step that just failed. The equations hold each photo's
+    /// normalisation while the cost re-fits it at every state, so near a level's end their
+    /// steps raise the cost whatever the damping; and from a small damping, ten times more
+    /// barely changes the step (Marquardt's scaling matters only from about 10⁻²). Traced
+    /// over 26 finest levels (`photo_eval --ict-subjects 5 --seeds 1 --counts 2,4`), 51 of
+    /// the 345 steps tried were within 2% of the failed step before them in the model's
+    /// fall ([`Equations::predicted_fall`]), and 13 promised less than 10⁻⁶ of the cost.
     fn minimise(&self, mut state: State, max_iterations: usize, iterations: &mut usize) -> State {
         let mut damping = 1e-3;
         for _ in 0..max_iterations {
@@ -3133,11 +3144,22 @@ impl Level<'_> {
             let visibility = self.visibility(&state);
             let (equations, cost) = self.normal_equations(&state, &visibility);
             let mut improved = false;
+            // The model's fall for the last step that failed.
+            let mut failed: Option<Real> = None;
             for _ in 0..8 {
                 let Some(step) = equations.solve_damped(damping) else {
                     damping *= 10.0;
                     continue;
                 };
+                let fall = equations.predicted_fall(&step, damping);
+                if fall.is_nan() || fall < 0.1 * MIN_RELATIVE_GAIN * cost {
+                    break;
+                }
+                if failed.is_some_and(|last| last - fall < SAME_STEP * last) {
+                    failed = Some(fall);
+                    damping *= 10.0;
+                    continue;
+                }
                 let step = -step;
                 let mut next = state.moved(&step);
                 let identity = next.weights.len() - self.shift_limits.len();
@@ -3149,9 +3171,10 @@ impl Level<'_> {
                     let relative = (cost - next_cost) / cost.max(1e-12);
                     state = next;
                     damping = (damping / 3.0).max(1e-7);
-                    improved = relative > 1e-5;
+                    improved = relative > MIN_RELATIVE_GAIN;
                     break;
                 }
+                failed = Some(fall);
                 damping *= 10.0;
             }
             if !improved {
@@ -3161,6 +3184,13 @@ impl Level<'_> {
         state
     }
 }
+
+/// [`Level::minimise`] stops when a step lowers the cost by less than this share of it.
+const MIN_RELATIVE_GAIN: Real = 1e-5;
+
+/// A step whose predicted fall is within this share of a step that just failed is not tried
+/// ([`Level::minimise`]).
+const SAME_STEP: Real = 0.02;
 
 /// One sample's robust consistency cost before its scale `β / σ²`: the Cauchy loss (`c = 2σ`)
 /// of each view's normalised intensity about the views' weighted mean, weighted.
