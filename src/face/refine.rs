@@ -3133,7 +3133,7 @@ impl Level<'_> {
     /// one [`SAME_STEP`]-close to a step that just failed. The equations hold each photo's
     /// normalisation while the cost re-fits it at every state, so near a level's end their
     /// steps raise the cost whatever the damping; and from a small damping, ten times more
-    /// barely changes the step (Marquardt's scaling matters only from about 10⁻²). Traced
+    /// barely changes the step (in the traces, the damping began to matter from about 10⁻²). Traced
     /// over 26 finest levels (`photo_eval --ict-subjects 5 --seeds 1 --counts 2,4`), 51 of
     /// the 345 steps tried were within 2% of the failed step before them in the model's
     /// fall ([`Equations::predicted_fall`]), and 13 promised less than 10⁻⁶ of the cost.
