@@ -612,22 +612,25 @@ impl Reconstruction {
             stage: "outputs (encoding)".into(),
         });
         let report = self.face.report();
-        let refinement = self.refinement.as_ref().map(|r| RefinementReport {
-            accepted: r.accepted,
-            share: r.share,
-            coverage: r.coverage.clone(),
-            disagreement_after: r.disagreement.1,
-            disagreement_before: r.disagreement.0,
-            field_max_units: r.displacement_size().map(|(max, _)| max),
-            field_rms_units: r.displacement_size().map(|(_, rms)| rms),
-            held_out_after: r.held_out.map(|h| h.1),
-            held_out_before: r.held_out.map(|h| h.0),
-            iterations: r.iterations,
-            landmark_rms_units_after: r.landmark_rms.1,
-            landmark_rms_units_before: r.landmark_rms.0,
-            note: r.note.clone(),
-            samples: r.samples.0,
-            samples_seen_twice: r.samples.1,
+        let refinement = self.refinement.as_ref().map(|r| {
+            let field = r.displacement_size();
+            RefinementReport {
+                accepted: r.accepted,
+                share: r.share,
+                coverage: r.coverage.clone(),
+                disagreement_after: r.disagreement.1,
+                disagreement_before: r.disagreement.0,
+                field_max_units: field.map(|(max, _)| max),
+                field_rms_units: field.map(|(_, rms)| rms),
+                held_out_after: r.held_out.map(|h| h.1),
+                held_out_before: r.held_out.map(|h| h.0),
+                iterations: r.iterations,
+                landmark_rms_units_after: r.landmark_rms.1,
+                landmark_rms_units_before: r.landmark_rms.0,
+                note: r.note.clone(),
+                samples: r.samples.0,
+                samples_seen_twice: r.samples.1,
+            }
         });
         let texture = match (&self.texture, &self.texture_photos) {
             (Some(t), Ok(names)) => {

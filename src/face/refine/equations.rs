@@ -126,20 +126,24 @@ impl Equations {
     /// `x` is `gᵀ x + λ Σ dᵢ xᵢ²` (`dᵢ` the damped diagonal's entries, as the solve scales
     /// them) and costs no product with `H`.
     pub(super) fn predicted_fall(&self, x: &DVector<Real>, damping: Real) -> Real {
-        let m = self.dense();
         let damped: Real = x
             .iter()
             .enumerate()
-            .map(|(t, v)| {
-                let d = if t < m {
-                    self.a[(t, t)]
-                } else {
-                    self.band.diagonal(t - m)
-                };
-                v * v * d.max(1e-9)
-            })
+            .map(|(t, v)| v * v * self.damping_scale(t))
             .sum();
         self.g.dot(x) + damping * damped
+    }
+
+    /// The damping's scale for unknown `t`: `H`'s diagonal entry, at least 10⁻⁹
+    /// ([`Equations::solve_damped`], [`Equations::predicted_fall`]).
+    fn damping_scale(&self, t: usize) -> Real {
+        let m = self.dense();
+        let d = if t < m {
+            self.a[(t, t)]
+        } else {
+            self.band.diagonal(t - m)
+        };
+        d.max(1e-9)
     }
 
     /// Solves `(H + λ diag(H)) x = g` (each diagonal entry at least 10⁻⁹ before it is
@@ -147,10 +151,9 @@ impl Equations {
     /// safely positive definite. Without field unknowns this is the dense Cholesky solve; with
     /// them, the Schur complement of the banded block (the [module](self)'s).
     pub(super) fn solve_damped(&self, damping: Real) -> Option<DVector<Real>> {
-        let damp = |d: Real| damping * d.max(1e-9);
         let mut a = self.a.clone();
         for d in 0..a.nrows() {
-            a[(d, d)] += damp(self.a[(d, d)]);
+            a[(d, d)] += damping * self.damping_scale(d);
         }
         let (m, f) = (self.dense(), self.field());
         if f == 0 {
@@ -158,7 +161,7 @@ impl Equations {
         }
         let mut band = self.band.clone();
         for d in 0..f {
-            band.add(d, d, damp(self.band.diagonal(d)));
+            band.add(d, d, damping * self.damping_scale(m + d));
         }
         let l = band.cholesky().ok()?;
         // V = L⁻¹ Bᵀ and y = L⁻¹ g₂ (forward substitution alone): `m + 1` right-hand sides,
