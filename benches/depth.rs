@@ -4,8 +4,9 @@
 //! the paper's method (frontal `x, y` kept) as the baseline in the same run; `frontal only` is
 //! the Procrustes part alone. `face space (60 identity, 53 expression modes)` is the default
 //! shape's joint fit of the embedded reference's face space to the same photos, every photo with
-//! its own expression (`FaceSpace::fit_photos`; target, issue 17: ≤ 30 ms), beside the depth
-//! stage it follows; `face space, neutral` the same fit without expressions.
+//! its own expression and its inner lips' gaps (`FaceSpace::fit_photos_with_lips`; target,
+//! issue 17: ≤ 30 ms), beside the depth stage it follows; `face space, neutral` the same fit
+//! without expressions, and `without the inner lips' gaps` without the gaps.
 //!
 //! Run: `cargo bench --bench depth`.
 
@@ -20,7 +21,14 @@ use splineface::random::Lcg;
 
 fn photos(count: usize) -> Vec<PhotoPoints> {
     let mut rng = Lcg(7);
-    let face = ReferenceFace::embedded().structure();
+    let reference = ReferenceFace::embedded();
+    let face = reference.structure();
+    let space = reference.face_space().expect("the default carries a face space");
+    let modes = space.mode_count();
+    let landmarks = space
+        .landmarks(&vec![0.0; modes], &[])
+        .unwrap()
+        .expect("the default carries its landmarks");
     (0..count)
         .map(|k| {
             let pose = Pose::from_yaw_pitch_roll_degrees(
@@ -31,17 +39,19 @@ fn photos(count: usize) -> Vec<PhotoPoints> {
             );
             // Uniform noise with the standard deviation of 1% of the eye distance.
             let sigma = 0.01 * 50.0 * pose.scale * 3f64.sqrt();
-            let pixels = face
-                .iter()
-                .map(|p| {
-                    let q = pose.project(p);
-                    Point2::new(
-                        320.0 + q.x + rng.uniform(-sigma, sigma),
-                        240.0 - q.y + rng.uniform(-sigma, sigma),
-                    )
-                })
-                .collect();
-            PhotoPoints::new(format!("photo{k}"), pixels).unwrap()
+            let mut seen = |p: &nalgebra::Point3<f64>| {
+                let q = pose.project(p);
+                Point2::new(
+                    320.0 + q.x + rng.uniform(-sigma, sigma),
+                    240.0 - q.y + rng.uniform(-sigma, sigma),
+                )
+            };
+            let pixels = face.iter().map(&mut seen).collect();
+            let inner_lips = landmarks[60..68].iter().map(&mut seen).collect();
+            PhotoPoints {
+                inner_lips,
+                ..PhotoPoints::new(format!("photo{k}"), pixels).unwrap()
+            }
         })
         .collect()
 }
@@ -72,27 +82,49 @@ fn bench(c: &mut Criterion) {
     let reference = ReferenceFace::embedded().as_seen_in_photos();
     let space = reference.face_space().expect("the default carries a face space");
     let views: Vec<Vec<Point2<f64>>> = photos.iter().map(PhotoPoints::y_up).collect();
+    let lips: Vec<_> = photos.iter().map(PhotoPoints::lip_gaps_y_up).collect();
     let weights = splineface::structure::contour_weighted(DepthOptions::default().contour_weight);
     let expressive = Some(splineface::face::ExpressionPrior::DEFAULT);
-    for (name, expressions, outline) in [
-        ("face space (60 identity, 53 expression modes)", expressive, true),
+    for (name, expressions, outline, with_lips) in [
+        (
+            "face space (60 identity, 53 expression modes)",
+            expressive,
+            true,
+            true,
+        ),
+        ("face space without the inner lips' gaps", expressive, true, false),
         (
             "face space, each photo's expression on its own (the plain prior)",
             Some(splineface::face::ExpressionPrior::independent(
                 splineface::face::ExpressionPrior::DEFAULT.sigma,
             )),
             true,
+            true,
         ),
-        ("face space, jaw points fixed (no outline)", expressive, false),
-        ("face space, neutral (60 identity modes)", None, true),
+        (
+            "face space, jaw points fixed (no outline)",
+            expressive,
+            false,
+            true,
+        ),
+        ("face space, neutral (60 identity modes)", None, true, true),
     ] {
         let options = splineface::face::PhotoFitOptions {
             noise: splineface::pipeline::Shape::DEFAULT_NOISE,
             expressions,
             outline,
+            lips: if with_lips {
+                splineface::face::LIP_WEIGHT
+            } else {
+                0.0
+            },
         };
         group.bench_function(name, |b| {
-            b.iter(|| space.fit_photos(black_box(&views), &weights, &options).unwrap())
+            b.iter(|| {
+                space
+                    .fit_photos_with_lips(black_box(&views), &lips, &weights, &options)
+                    .unwrap()
+            })
         });
     }
     group.finish();

@@ -79,6 +79,7 @@ fn bench(c: &mut Criterion) {
         noise: splineface::pipeline::Shape::DEFAULT_NOISE,
         expressions: None,
         outline: false,
+        lips: splineface::face::LIP_WEIGHT,
     };
     let fit = space.fit_photos(&views, &weights, &fit_options).unwrap();
     let refine_views: Vec<RefineView> = images

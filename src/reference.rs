@@ -27,7 +27,7 @@
 //! ```json
 //! {
 //!   "format": "splineface/reference",
-//!   "version": 4,
+//!   "version": 5,
 //!   "surface": { …a splineface/bspline-surface… },
 //!   "structure": [[x, y, z], …40],
 //!   "photo_structure": { "points": [[x, y, z], …40], "note": "…" },   // optional, v2+
@@ -36,8 +36,11 @@
 //!     "grid_encoding": "f32le-base64", "grid": "…K × rows·cols × 3 floats…", "note": "…",
 //!     "expressions": {                                               // optional, v4+
 //!       "names": ["jawOpen", …L], "structure": [[[dx, dy, dz], …40], …L],
-//!       "grid_encoding": "f32le-base64", "grid": "…", "note": "…"
-//!     }
+//!       "grid_encoding": "f32le-base64", "grid": "…", "note": "…",
+//!       "landmarks": "…L × 68 × 3 floats…"                           // optional, v5+
+//!     },
+//!     "landmark_base": [[x, y, z], …68],                             // optional, v5+
+//!     "landmarks": "…K × 68 × 3 floats…"                             // with it
 //!   },
 //!   "edges": [[i, j], …],
 //!   "frame": { "x": [x0, x1], "y": [y0, y1] },
@@ -59,7 +62,7 @@ use crate::Real;
 use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit};
 use crate::geometry::{bounding_box, polygon_contains};
 use crate::mesh::{Raster, TriangleMesh, front_heights};
-use crate::structure::{self, POINT_COUNT, StructureError, delaunay_edges, unify};
+use crate::structure::{self, IBUG_POINT_COUNT, POINT_COUNT, StructureError, delaunay_edges, unify};
 
 /// How a reference is fitted.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -249,10 +252,11 @@ pub struct ReferenceFace {
 }
 
 /// A face space's modes as a reference carries them (see [`crate::face::FaceSpace`]): per
-/// mode, its displacement of the control grid and of the 40 points, and its prior standard
-/// deviation. Grid displacements are stored as little-endian `f32` in base64 (a 32 × 32 grid
-/// with 60 modes is 0.7 MB of floats; as JSON numbers it would be five times that), and kept
-/// at `f32` precision in memory too, so that writing and reading back is exact.
+/// mode, its displacement of the control grid, of the 40 points and (since format version 5,
+/// optionally) of the scan's 68 iBUG landmarks, and its prior standard deviation. Grid and
+/// landmark displacements are stored as little-endian `f32` in base64 (a 32 × 32 grid with 60
+/// modes is 0.7 MB of floats; as JSON numbers it would be five times that), and kept at `f32`
+/// precision in memory too, so that writing and reading back is exact.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SpaceModes {
     /// `grid[k]`: mode `k`'s displacement of every control point, row-major.
@@ -265,6 +269,15 @@ pub struct SpaceModes {
     pub note: String,
     /// The expression modes, if any (empty for none).
     pub expressions: ExpressionModes,
+    /// The 68 iBUG landmarks of the reference's scan (its landmark vertices, canonical frame),
+    /// or empty when the space does not carry them (format versions 3 and 4). With them,
+    /// [`SpaceModes::landmarks`] and [`ExpressionModes::landmarks`] say how every mode moves
+    /// them: what a fit needs for points beyond the 40 (the inner lips, which show an open
+    /// mouth, [`crate::structure::INNER_LIP_PAIRS`]).
+    pub landmark_base: Vec<Point3<Real>>,
+    /// `landmarks[k]`: mode `k`'s displacement of the 68 iBUG landmarks (empty without
+    /// [`SpaceModes::landmark_base`]). Stored like the grid, as `f32`.
+    pub landmarks: Vec<Vec<Vector3<Real>>>,
 }
 
 /// A face space's expression modes (blendshapes): per mode, its name and its displacement of
@@ -282,6 +295,9 @@ pub struct ExpressionModes {
     pub structure: Vec<Vec<Vector3<Real>>>,
     /// Where the modes came from (data, licence).
     pub note: String,
+    /// `landmarks[k]`: mode `k`'s displacement of the 68 iBUG landmarks, when the space
+    /// carries them ([`SpaceModes::landmark_base`]); empty otherwise.
+    pub landmarks: Vec<Vec<Vector3<Real>>>,
 }
 
 impl ExpressionModes {
@@ -306,6 +322,9 @@ struct RawExpressions {
     grid_encoding: String,
     grid: String,
     note: String,
+    /// `L × 68 × 3` floats, `grid_encoding` (v5+, with the space's `landmark_base`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    landmarks: Option<String>,
 }
 
 /// The serialised form of [`SpaceModes`].
@@ -321,6 +340,12 @@ struct RawSpace {
     note: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     expressions: Option<RawExpressions>,
+    /// The 68 iBUG landmarks (v5+).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    landmark_base: Option<Vec<Point3<Real>>>,
+    /// `K × 68 × 3` floats, `grid_encoding` (v5+).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    landmarks: Option<String>,
 }
 
 const GRID_ENCODING: &str = "f32le-base64";
@@ -336,14 +361,14 @@ fn encode_grid(grid: &[Vec<Vector3<Real>>]) -> String {
     base64::encode(bytes)
 }
 
-/// The inverse of [`encode_grid`] for `modes` modes of `controls` control points; `what`
-/// names the field in errors.
+/// The inverse of [`encode_grid`] for `modes` modes of `points` displaced points each (the
+/// grid's control points, or landmarks); `what` names the field in errors, `unit` the points.
 fn decode_grid(
     encoding: &str,
     grid: &str,
-    modes: usize,
-    controls: usize,
+    (modes, points): (usize, usize),
     what: &str,
+    unit: &str,
 ) -> Result<Vec<Vec<Vector3<Real>>>, String> {
     if encoding != GRID_ENCODING {
         return Err(format!(
@@ -351,10 +376,10 @@ fn decode_grid(
         ));
     }
     let bytes = base64::decode(grid).map_err(|e| format!("{what}: the grid is not valid base64 ({e})"))?;
-    let expected = modes * controls * 12;
+    let expected = modes * points * 12;
     if bytes.len() != expected {
         return Err(format!(
-            "{what}: the grid holds {} bytes; {modes} modes of {controls} control points need {expected}",
+            "{what}: the grid holds {} bytes; {modes} modes of {points} {unit} need {expected}",
             bytes.len()
         ));
     }
@@ -363,7 +388,7 @@ fn decode_grid(
         .map(|c| Real::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
         .collect();
     Ok(values
-        .chunks_exact(controls * 3)
+        .chunks_exact((points * 3).max(1))
         .map(|mode| {
             mode.chunks_exact(3)
                 .map(|c| Vector3::new(c[0], c[1], c[2]))
@@ -407,6 +432,30 @@ fn check_mode_shapes(
     Ok(())
 }
 
+/// Checks that `modes` (`what`'s) are `count` displacements of the 68 iBUG landmarks, finite.
+fn check_landmark_modes(modes: &[Vec<Vector3<Real>>], count: usize, what: &str) -> Result<(), String> {
+    if modes.len() != count {
+        return Err(format!(
+            "{what}: {} landmark displacements for {count} modes",
+            modes.len()
+        ));
+    }
+    for (m, mode) in modes.iter().enumerate() {
+        if mode.len() != IBUG_POINT_COUNT {
+            return Err(format!(
+                "{what}: mode {m} moves {} landmarks, expected {IBUG_POINT_COUNT}",
+                mode.len()
+            ));
+        }
+        if !mode.iter().all(|d| d.iter().all(|c| c.is_finite())) {
+            return Err(format!(
+                "{what}: mode {m} moves a landmark by a displacement that is not finite"
+            ));
+        }
+    }
+    Ok(())
+}
+
 impl SpaceModes {
     /// The first `k` identity modes only (all of them when there are fewer); the expressions
     /// stay.
@@ -418,6 +467,8 @@ impl SpaceModes {
             sigma: self.sigma[..k].to_vec(),
             note: format!("{} (the first {k} modes)", self.note),
             expressions: self.expressions.clone(),
+            landmark_base: self.landmark_base.clone(),
+            landmarks: self.landmarks[..k.min(self.landmarks.len())].to_vec(),
         }
     }
 
@@ -427,9 +478,16 @@ impl SpaceModes {
         self
     }
 
-    /// The modes with their grid displacements rounded to `f32` (what the file stores).
+    /// The modes with their grid and landmark displacements rounded to `f32` (what the file
+    /// stores).
     pub fn rounded(mut self) -> Self {
-        for mode in self.grid.iter_mut().chain(&mut self.expressions.grid) {
+        for mode in self
+            .grid
+            .iter_mut()
+            .chain(&mut self.expressions.grid)
+            .chain(&mut self.landmarks)
+            .chain(&mut self.expressions.landmarks)
+        {
             for d in mode.iter_mut() {
                 *d = d.map(|c| Real::from(c as f32));
             }
@@ -453,7 +511,20 @@ impl SpaceModes {
             ));
         }
         check_mode_shapes(&self.grid, &self.structure, controls, "space")?;
-        self.expressions.check(controls)
+        self.expressions.check(controls)?;
+        // The landmarks come with every mode's displacement of them, or not at all.
+        let (identity, expressions) = if self.landmark_base.is_empty() {
+            (0, 0)
+        } else {
+            check_points_n(&self.landmark_base, IBUG_POINT_COUNT, "space landmark_base")?;
+            (k, self.expressions.len())
+        };
+        check_landmark_modes(&self.landmarks, identity, "space landmarks")?;
+        check_landmark_modes(
+            &self.expressions.landmarks,
+            expressions,
+            "space expressions' landmarks",
+        )
     }
 }
 
@@ -484,9 +555,11 @@ impl ExpressionModes {
 
 impl From<SpaceModes> for RawSpace {
     fn from(s: SpaceModes) -> Self {
+        let with_landmarks = !s.landmark_base.is_empty();
         let expressions = (!s.expressions.is_empty()).then(|| RawExpressions {
             grid_encoding: GRID_ENCODING.to_owned(),
             grid: encode_grid(&s.expressions.grid),
+            landmarks: with_landmarks.then(|| encode_grid(&s.expressions.landmarks)),
             names: s.expressions.names,
             structure: s.expressions.structure,
             note: s.expressions.note,
@@ -499,34 +572,64 @@ impl From<SpaceModes> for RawSpace {
             structure: s.structure,
             note: s.note,
             expressions,
+            landmarks: with_landmarks.then(|| encode_grid(&s.landmarks)),
+            landmark_base: with_landmarks.then_some(s.landmark_base),
         }
     }
 }
 
 impl RawSpace {
+    /// Whether the space carries landmarks (format version 5).
+    fn has_landmarks(&self) -> bool {
+        self.landmark_base.is_some()
+            || self.landmarks.is_some()
+            || self.expressions.as_ref().is_some_and(|e| e.landmarks.is_some())
+    }
+
     fn decode(self, controls: usize) -> Result<SpaceModes, String> {
-        let grid = decode_grid(&self.grid_encoding, &self.grid, self.modes, controls, "space")?;
-        let expressions = match self.expressions {
+        let encoding = &self.grid_encoding;
+        let grid = decode_grid(
+            encoding,
+            &self.grid,
+            (self.modes, controls),
+            "space",
+            "control points",
+        )?;
+        let landmarks = |field: Option<&String>, modes: usize, what: &str| match field {
+            Some(l) => decode_grid(encoding, l, (modes, IBUG_POINT_COUNT), what, "landmarks"),
+            None if self.landmark_base.is_some() && modes > 0 => {
+                Err(format!("{what}: missing, while the space has a landmark_base"))
+            }
+            None => Ok(Vec::new()),
+        };
+        let expressions = match &self.expressions {
             None => ExpressionModes::default(),
             Some(e) => ExpressionModes {
                 grid: decode_grid(
                     &e.grid_encoding,
                     &e.grid,
-                    e.names.len(),
-                    controls,
+                    (e.names.len(), controls),
                     "space expressions",
+                    "control points",
                 )?,
-                names: e.names,
-                structure: e.structure,
-                note: e.note,
+                landmarks: landmarks(
+                    e.landmarks.as_ref(),
+                    e.names.len(),
+                    "space expressions' landmarks",
+                )?,
+                names: e.names.clone(),
+                structure: e.structure.clone(),
+                note: e.note.clone(),
             },
         };
         let space = SpaceModes {
             grid,
+            landmarks: landmarks(self.landmarks.as_ref(), self.modes, "space landmarks")?,
             structure: self.structure,
             sigma: self.sigma,
             note: self.note,
             expressions,
+            landmark_base: self.landmark_base.unwrap_or_default(),
         };
         space.check(controls)?;
         Ok(space)
@@ -946,6 +1049,9 @@ pub fn build_reference_with_space(
             "The principal components of the {n} scans' own grids (fit-reference --space-from-scans); {note}"
         ),
         expressions: ExpressionModes::default(),
+        // The scans' 68 landmarks are reduced to their structures before this point.
+        landmark_base: Vec::new(),
+        landmarks: Vec::new(),
     };
     reference.with_space(Some(space))
 }
@@ -1131,15 +1237,18 @@ pub enum ReferenceFileError {
 
 const FORMAT: &str = "splineface/reference";
 /// Version 2 added the optional `photo_structure`, version 3 the optional `space`, version 4
-/// its optional `expressions`; older files still load.
-const VERSION: u32 = 4;
+/// its optional `expressions`, version 5 its optional landmarks (`landmark_base` and every
+/// mode's `landmarks`); older files still load.
+const VERSION: u32 = 5;
 
 fn check_points(points: &[Point3<Real>], what: &str) -> Result<(), String> {
-    if points.len() != POINT_COUNT {
-        return Err(format!(
-            "{what} has {} points, expected {POINT_COUNT}",
-            points.len()
-        ));
+    check_points_n(points, POINT_COUNT, what)
+}
+
+/// Checks `count` finite points.
+fn check_points_n(points: &[Point3<Real>], count: usize, what: &str) -> Result<(), String> {
+    if points.len() != count {
+        return Err(format!("{what} has {} points, expected {count}", points.len()));
     }
     if let Some(k) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
         return Err(format!("{what} point {k} is not finite"));
@@ -1203,6 +1312,9 @@ impl TryFrom<RawReference> for ReferenceFace {
         }
         if raw.version < 4 && raw.space.as_ref().is_some_and(|s| s.expressions.is_some()) {
             return Err("space expressions need format version 4".to_owned());
+        }
+        if raw.version < 5 && raw.space.as_ref().is_some_and(RawSpace::has_landmarks) {
+            return Err("space landmarks need format version 5".to_owned());
         }
         let controls = raw.surface.rows() * raw.surface.cols();
         let space = raw.space.map(|s| s.decode(controls)).transpose()?;

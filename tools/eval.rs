@@ -92,6 +92,7 @@ const SPACE: Shape = Shape::Space {
     noise: Shape::DEFAULT_NOISE,
     expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
     outline: true,
+    lips: 0.0,
 };
 
 const METHODS: [Method; 7] = [
@@ -141,6 +142,7 @@ const METHODS: [Method; 7] = [
                 noise: Shape::DEFAULT_NOISE,
                 expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
                 outline: false,
+                lips: 0.0,
             },
             LOCAL,
         )),

@@ -835,6 +835,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             "expression_sigma" => s.expression_sigma = number(&value)?,
             "expressions" => s.expressions = flag(&value)?,
             "outline" => s.outline = flag(&value)?,
+            "lips" => s.lips = flag(&value)?,
             "refine" => s.refine = flag(&value)?,
             "displacement" => s.displacement = flag(&value)?,
             "deformation" => s.deformation = text(&value)?,
@@ -851,7 +852,7 @@ fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipe
             _ => {
                 return Err(PyTypeError::new_err(format!(
                     "unexpected keyword argument '{key}' (the settings are units, eye_distance, shape, \
-                     space_noise, expression_sigma, expressions, outline, refine, displacement, deformation, \
+                     space_noise, expression_sigma, expressions, outline, lips, refine, displacement, deformation, \
                      spacing, depth_size, texture_size, min_photos)"
                 )));
             }

@@ -171,6 +171,8 @@ def test_unknown_and_mistyped_settings_are_refused(demo_photos):
         splineface.reconstruct(landmarks=demo_photos, refine="yes")
     with pytest.raises(TypeError, match="outline: expected True or False"):
         splineface.reconstruct(landmarks=demo_photos, outline=1)
+    with pytest.raises(TypeError, match="lips: expected True or False"):
+        splineface.reconstruct(landmarks=demo_photos, lips="off")
     with pytest.raises(TypeError, match="displacement: expected True or False"):
         splineface.reconstruct(landmarks=demo_photos, displacement="no")
     with pytest.raises(TypeError, match="min_photos: expected a whole number"):

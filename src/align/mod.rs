@@ -40,7 +40,17 @@ pub struct PhotoPoints {
     pub name: String,
     /// The 40 points, in structure order.
     pub points: Vec<Point2<Real>>,
+    /// The inner lips, iBUG points 60–67 in order, when the landmarker gave the 68 iBUG points;
+    /// empty otherwise. They are not among the 40: the face-space fit reads an open mouth from
+    /// them ([`PhotoPoints::lip_gaps_y_up`]).
+    pub inner_lips: Vec<Point2<Real>>,
 }
+
+/// The first iBUG point of [`PhotoPoints::inner_lips`].
+pub const FIRST_INNER_LIP: usize = 60;
+
+/// How many points [`PhotoPoints::inner_lips`] holds when it holds any.
+pub const INNER_LIP_COUNT: usize = 8;
 
 impl PhotoPoints {
     /// A photo's points, checked: exactly 40 finite points with distinct eye centres.
@@ -51,21 +61,42 @@ impl PhotoPoints {
         let photo = Self {
             name: name.into(),
             points,
+            inner_lips: Vec::new(),
         };
         photo.validate()?;
         Ok(photo)
     }
 
-    /// A photo's points from the 68 iBUG points (see [`structure::from_ibug68`]).
+    /// A photo's points from the 68 iBUG points (see [`structure::from_ibug68`]), with its
+    /// inner lips.
     ///
     /// # Errors
     /// [`AlignError::Points`] naming the photo.
     pub fn from_ibug68(name: impl Into<String>, ibug: &[Point2<Real>]) -> Result<Self, AlignError> {
         let name = name.into();
         match structure::from_ibug68(ibug) {
-            Ok(points) => Self::new(name, points),
+            Ok(points) => {
+                let photo = Self {
+                    name,
+                    points,
+                    inner_lips: ibug[FIRST_INNER_LIP..FIRST_INNER_LIP + INNER_LIP_COUNT].to_vec(),
+                };
+                photo.validate()?;
+                Ok(photo)
+            }
             Err(source) => Err(AlignError::Points { photo: name, source }),
         }
+    }
+
+    /// The inner lips' gaps ([`structure::inner_lip_gaps`]) with `y` up, or `None` without
+    /// [`PhotoPoints::inner_lips`].
+    pub fn lip_gaps_y_up(&self) -> Option<[Vector2<Real>; 3]> {
+        (self.inner_lips.len() == INNER_LIP_COUNT).then(|| {
+            structure::INNER_LIP_PAIRS.map(|(upper, lower)| {
+                let d = self.inner_lips[lower - FIRST_INNER_LIP] - self.inner_lips[upper - FIRST_INNER_LIP];
+                Vector2::new(d.x, -d.y)
+            })
+        })
     }
 
     /// Checks what [`PhotoPoints::new`] checks (the fields are public, so callers that built
@@ -94,6 +125,23 @@ impl PhotoPoints {
         let eyes = self.points[LEFT_EYE_CENTRE] - self.points[RIGHT_EYE_CENTRE];
         if !(eyes.norm() > 0.0 && eyes.norm().is_finite()) {
             return Err(fail(StructureError::CoincidentEyes));
+        }
+        let lips = |problem: String| AlignError::InnerLips {
+            photo: self.name.clone(),
+            problem,
+        };
+        if !(self.inner_lips.is_empty() || self.inner_lips.len() == INNER_LIP_COUNT) {
+            return Err(lips(format!(
+                "{} points, expected none or {INNER_LIP_COUNT}",
+                self.inner_lips.len()
+            )));
+        }
+        if let Some(k) = self
+            .inner_lips
+            .iter()
+            .position(|p| !(p.x.is_finite() && p.y.is_finite()))
+        {
+            return Err(lips(format!("point {} is not finite", FIRST_INNER_LIP + k)));
         }
         Ok(())
     }
@@ -193,6 +241,14 @@ pub enum AlignError {
         photo: String,
         /// What is wrong with its points.
         source: StructureError,
+    },
+    /// A photo's inner lips ([`PhotoPoints::inner_lips`]) are not 8 finite points.
+    #[error("photo {photo}: the inner lips (iBUG 60–67): {problem}")]
+    InnerLips {
+        /// The photo's name.
+        photo: String,
+        /// What is wrong.
+        problem: String,
     },
     /// A photo's points do not span the plane (all on one line, or all at one place), so no
     /// affine map can carry them onto a face.

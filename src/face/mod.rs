@@ -43,7 +43,8 @@ pub use refine::{
     SHIFTED_EXPRESSION_MIN, SHIFTED_EXPRESSIONS_MAX, TYPICAL_FOCAL, Window,
 };
 pub use space::{
-    DenseFitOptions, ExpressionPrior, FaceSpace, PLAUSIBLE_SIGMAS, PhotoFitOptions, PhotoSpaceFit, SpaceFit,
+    DenseFitOptions, ExpressionPrior, FaceSpace, LIP_WEIGHT, LipGaps, PLAUSIBLE_SIGMAS, PhotoFitOptions,
+    PhotoSpaceFit, SpaceFit,
 };
 pub use tessellate::{ClippedMesh, MAX_VERTICES, MeshOptions};
 pub use texture::{

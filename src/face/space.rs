@@ -12,7 +12,7 @@ use crate::bspline::{BSplineSurface, SpaceSamples, SurfaceSpace};
 use crate::depth::Pose;
 use crate::mesh::{ClosestPoints, TriangleMesh, front_hits};
 use crate::reference::{ExpressionModes, ReferenceFace};
-use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
+use crate::structure::{IBUG_POINT_COUNT, INNER_LIP_PAIRS, POINT_COUNT, from_ibug68};
 
 /// A linear face space: the reference's surface and structure plus `K` modes,
 ///
@@ -27,13 +27,19 @@ use crate::structure::{IBUG_POINT_COUNT, POINT_COUNT, from_ibug68};
 /// expression what one photo caught them doing. The modes
 /// come from per-vertex displacement fields of the scan the reference was fitted to
 /// ([`FaceSpace::from_displacements`]), so a member is the face the scan becomes under those
-/// displacements, seen through the reference's parametrisation.
+/// displacements, seen through the reference's parametrisation. Such a space also carries the
+/// scan's 68 iBUG landmark vertices and every mode's displacement of them
+/// ([`FaceSpace::landmarks`]): points a landmarker gives beyond the 40, such as the inner lips
+/// that show an open mouth ([`FaceSpace::fit_photos_with_lips`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FaceSpace {
     surfaces: SurfaceSpace,
     structure: SpaceSamples,
     sigma: Vec<Real>,
     expressions: ExpressionModes,
+    /// The 68 iBUG landmarks and each identity mode's displacement of them, when the space
+    /// carries them (the expressions' are in [`ExpressionModes::landmarks`]).
+    landmarks: Option<SpaceSamples>,
 }
 
 /// A member of a [`FaceSpace`] fitted to data: its weights and where it sits.
@@ -89,7 +95,8 @@ impl FaceSpace {
                 sigma[k]
             )));
         }
-        let (grid, structure) = Carrier::new(reference, scan, landmarks)?.carry(fields)?;
+        let carrier = Carrier::new(reference, scan, landmarks)?;
+        let (grid, structure, landmark_modes) = carrier.carry(fields)?;
         Ok(FaceSpace {
             surfaces: SurfaceSpace::new(reference.surface().clone(), grid)?,
             structure: SpaceSamples {
@@ -98,6 +105,10 @@ impl FaceSpace {
             },
             sigma: sigma.to_vec(),
             expressions: ExpressionModes::default(),
+            landmarks: Some(SpaceSamples {
+                base: carrier.landmark_positions(),
+                modes: landmark_modes,
+            }),
         })
     }
 
@@ -125,12 +136,18 @@ impl FaceSpace {
                 fields.len()
             )));
         }
-        let (grid, structure) = Carrier::new(reference, scan, landmarks)?.carry(fields)?;
+        let (grid, structure, landmark_modes) = Carrier::new(reference, scan, landmarks)?.carry(fields)?;
         let expressions = ExpressionModes {
             names: names.to_vec(),
             grid,
             structure,
             note: note.to_owned(),
+            // Only a space that carries the landmarks carries its expressions' moves of them.
+            landmarks: if self.landmarks.is_some() {
+                landmark_modes
+            } else {
+                Vec::new()
+            },
         };
         expressions
             .check(self.surfaces.base().rows() * self.surfaces.base().cols())
@@ -161,6 +178,10 @@ impl FaceSpace {
             },
             sigma: modes.sigma.clone(),
             expressions: modes.expressions.clone(),
+            landmarks: (!modes.landmark_base.is_empty()).then(|| SpaceSamples {
+                base: modes.landmark_base.clone(),
+                modes: modes.landmarks.clone(),
+            }),
         })
     }
 
@@ -173,6 +194,8 @@ impl FaceSpace {
             sigma: self.sigma.clone(),
             note: note.to_owned(),
             expressions: self.expressions.clone(),
+            landmark_base: self.landmarks.as_ref().map_or_else(Vec::new, |l| l.base.clone()),
+            landmarks: self.landmarks.as_ref().map_or_else(Vec::new, |l| l.modes.clone()),
         }
     }
 
@@ -217,6 +240,10 @@ impl FaceSpace {
             },
             sigma: self.sigma[..k].to_vec(),
             expressions: self.expressions.clone(),
+            landmarks: self.landmarks.as_ref().map(|l| SpaceSamples {
+                base: l.base.clone(),
+                modes: l.modes[..k].to_vec(),
+            }),
         }
     }
 
@@ -295,6 +322,30 @@ impl FaceSpace {
         }
         add_weighted(&mut points, &self.expressions.structure, expression);
         Ok(points)
+    }
+
+    /// Whether the space carries the 68 iBUG landmarks ([`FaceSpace::landmarks`]).
+    pub fn carries_landmarks(&self) -> bool {
+        self.landmarks.is_some()
+    }
+
+    /// The member's 68 iBUG landmarks with an expression (`expression` as
+    /// [`FaceSpace::face_with_expression`]'s), canonical frame, or `None` when the space does not
+    /// carry them ([`crate::reference::SpaceModes::landmark_base`]).
+    ///
+    /// # Errors
+    /// As [`FaceSpace::structure_with_expression`].
+    pub fn landmarks(
+        &self,
+        weights: &[Real],
+        expression: &[Real],
+    ) -> Result<Option<Vec<Point3<Real>>>, FaceError> {
+        self.structure_with_expression(weights, expression)?; // validates the weights
+        Ok(self.landmarks.as_ref().map(|landmarks| {
+            let mut points = landmarks.member(weights);
+            add_weighted(&mut points, &self.expressions.landmarks, expression);
+            points
+        }))
     }
 
     /// The MAP fit of the space's structure to 40 target points in any frame: weights and a
@@ -536,15 +587,28 @@ impl<'a> Carrier<'a> {
         })
     }
 
-    /// Each field's displacement grid and structure displacement.
+    /// The scan's 68 landmark vertices.
+    fn landmark_positions(&self) -> Vec<Point3<Real>> {
+        self.landmarks.iter().map(|&v| self.scan.positions()[v]).collect()
+    }
+
+    /// Each field's displacement grid, structure displacement and landmark displacement.
     #[allow(clippy::type_complexity)]
     fn carry(
         &self,
         fields: &[Vec<Vector3<Real>>],
-    ) -> Result<(Vec<Vec<Vector3<Real>>>, Vec<Vec<Vector3<Real>>>), FaceError> {
+    ) -> Result<
+        (
+            Vec<Vec<Vector3<Real>>>,
+            Vec<Vec<Vector3<Real>>>,
+            Vec<Vec<Vector3<Real>>>,
+        ),
+        FaceError,
+    > {
         let vertices = self.scan.positions().len();
         let mut grids = Vec::with_capacity(fields.len());
         let mut structures = Vec::with_capacity(fields.len());
+        let mut landmarks = Vec::with_capacity(fields.len());
         for (k, field) in fields.iter().enumerate() {
             if field.len() != vertices {
                 return Err(FaceError::Space(format!(
@@ -569,8 +633,9 @@ impl<'a> Carrier<'a> {
             let ibug: Vec<Point3<Real>> = self.landmarks.iter().map(|&v| Point3::from(field[v])).collect();
             let moved = from_ibug68(&ibug).map_err(|e| FaceError::Space(e.to_string()))?;
             structures.push(moved.into_iter().map(|p| p.coords).collect());
+            landmarks.push(ibug.into_iter().map(|p| p.coords).collect());
         }
-        Ok((grids, structures))
+        Ok((grids, structures, landmarks))
     }
 }
 
@@ -648,7 +713,40 @@ pub struct PhotoFitOptions {
     /// (where a landmarker puts them, [`super::OUTLINE_POINTS`]), not against fixed places of
     /// the face; [`PhotoSpaceFit::outline_shifts`] says how far it moved them.
     pub outline: bool,
+    /// `ω_g`, the weight of each inner-lip gap ([`crate::structure::INNER_LIP_PAIRS`]) beside
+    /// a point's in [`FaceSpace::fit_photos_with_lips`] (0 leaves the gaps out). A gap is the
+    /// difference of two points, with twice a point's variance.
+    pub lips: Real,
 }
+
+/// The weight [`PhotoFitOptions::lips`] takes when the inner lips are asked for (the
+/// pipeline leaves them out by default, [`crate::pipeline::Shape::Space`]).
+///
+/// Measured by `tools/photo_eval --expressions --expression-oracle --seeds 2 --counts 3,8`
+/// (six ICT-FaceKit identities wearing real skins, neutral, smiling (0.7) and with the jaw
+/// open (0.35) in the same poses; dlib's landmarks; the whole photo path with the refinement;
+/// error against the neutral identity over the mean face's, 3 / 8 photos):
+///
+/// | inner lips | neutral | smile | jaw open | jaw weight found (truth 0.35) |
+/// |---|---|---|---|---|
+/// | **left out** | **0.69 / 0.57** | **0.75 / 0.70** | **0.74 / 0.68** | 0.20 / 0.19 |
+/// | ω_g = 0.5 | 0.71 / 0.60 | 0.80 / 0.69 | 0.75 / 0.70 | 0.22 / 0.22 |
+/// | ω_g = 2 | 0.71 / 0.60 | 0.78 / 0.67 | 0.75 / 0.69 | |
+/// | ω_g = 0.5, the gaps' changes read at 0.6 and 0.5 units more open | 0.70 / 0.59 | 0.79 / 0.69 | 0.74 / 0.70 | |
+///
+/// The gaps do not pay on these photos. dlib reads the inner lips' gap at about 0.6 of its
+/// change (over the eye distance, on the pools of ict-0, ict-3 and ict-5: 0.020–0.038
+/// neutral, 0.117–0.125 with the jaw open, where the mean face opens from 0.016 to 0.174), so
+/// the landmark fit finds a little more of an open jaw (0.22 of 0.35) but not the face; and
+/// reading more into a closed mouth's gaps than the mean face has, it fits the neutral photos'
+/// mouths open and their faces worse. Reading the gaps at dlib's gain and offset (the last row)
+/// brings the neutral back part of the way and the jaw no further. The rendered subjects'
+/// mouths have nothing inside them; a real open mouth (teeth, a dark inside) may be read
+/// otherwise, which these photos cannot say.
+pub const LIP_WEIGHT: Real = 0.5;
+
+/// A photo's inner-lip gaps, `y` up, in its pixels ([`crate::structure::inner_lip_gaps`]).
+pub type LipGaps = [Vector2<Real>; 3];
 
 /// The prior of the photos' expression weights in [`FaceSpace::fit_photos`]: per photo `i`
 /// and expression mode `l`, the weight `eᵢₗ ∈ [0, 1]` costs
@@ -772,20 +870,64 @@ impl FaceSpace {
         point_weights: &[Real; POINT_COUNT],
         options: &PhotoFitOptions,
     ) -> Result<PhotoSpaceFit, FaceError> {
+        self.fit_photos_with_lips(views, &[], point_weights, options)
+    }
+
+    /// [`FaceSpace::fit_photos`] with each photo's inner-lip gaps: `lips[i]` photo `i`'s
+    /// ([`LipGaps`], `y` up), `None` for a photo without them (its landmarker gave the 40
+    /// points only), or no entries at all for none. Each gap adds
+    ///
+    /// ```text
+    /// ω_g ‖sᵢ P Rᵢ (G(w) + Σₗ eᵢₗ ΔGₗ)_g − gᵢ_g‖² / (sᵢ² ε²)
+    /// ```
+    ///
+    /// to the objective, `G` the space's own gaps (its lower inner-lip landmarks minus the
+    /// upper, [`crate::structure::INNER_LIP_PAIRS`]) and `ω_g` [`PhotoFitOptions::lips`]. A
+    /// gap needs no offset: it is a direction in the photo, not a place. The gaps are what
+    /// tells an open mouth from a long chin: no identity opens the mouth, and only the
+    /// expressions do. A space that does not carry the landmarks
+    /// ([`crate::reference::SpaceModes::landmark_base`]) ignores them.
+    ///
+    /// # Errors
+    /// As [`FaceSpace::fit_photos`], and [`FaceError::Option`] for gaps that are not one
+    /// entry per view, not finite, or a negative gap weight.
+    pub fn fit_photos_with_lips(
+        &self,
+        views: &[Vec<Point2<Real>>],
+        lips: &[Option<LipGaps>],
+        point_weights: &[Real; POINT_COUNT],
+        options: &PhotoFitOptions,
+    ) -> Result<PhotoSpaceFit, FaceError> {
         let (noise, total) = check_photo_fit(views, point_weights, options)?;
+        check_lips(views, lips, options.lips)?;
         let expression_modes: &[Vec<Vector3<Real>>] = match options.expressions {
             Some(_) => &self.expressions.structure,
             None => &[],
         };
+        let gaps = match &self.landmarks {
+            Some(landmarks) if options.lips > 0.0 && lips.iter().any(Option::is_some) => {
+                Some(self.lip_gap_samples(landmarks, options.expressions.is_some()))
+            }
+            _ => None,
+        };
         let problem = JointProblem::new(
             self,
             expression_modes,
+            gaps,
             point_weights,
+            options.lips,
             noise,
             options.expressions.unwrap_or(ExpressionPrior::DEFAULT),
         );
 
         let mut photos = self.starting_photos(views, point_weights, total, expression_modes.len())?;
+        if problem.with_gaps() {
+            for (photo, gaps) in photos.iter_mut().zip(lips) {
+                photo.sees_gaps = gaps.is_some();
+                let gaps = gaps.unwrap_or([Vector2::zeros(); 3]);
+                photo.targets.extend(gaps.iter().map(|g| g / photo.unit));
+            }
+        }
         let mut weights = vec![0.0; self.mode_count() + problem.shared];
         let outline_shifts = if options.outline {
             let outline = super::outline::Outline::new(self)?;
@@ -815,11 +957,12 @@ impl FaceSpace {
                 held.push(k);
             }
         }
-        let identity = self.structure.member(&weights);
+        let identity = problem.points.member(&weights);
         let rms_units = photos
             .iter()
             .map(|photo| {
                 let shape = problem.shape(&identity, &photo.expression);
+                // Over the 40 points (the gaps follow them in the residuals).
                 let sum: Real = problem
                     .residuals(photo, &shape)
                     .iter()
@@ -921,6 +1064,35 @@ fn check_photo_fit(
     Ok((noise, total))
 }
 
+/// [`FaceSpace::fit_photos_with_lips`]' checks of the gaps: none, or one entry per view, each
+/// finite where given, and a finite non-negative weight.
+fn check_lips(views: &[Vec<Point2<Real>>], lips: &[Option<LipGaps>], weight: Real) -> Result<(), FaceError> {
+    let bad = |name: &'static str, value: String, expected: &'static str| {
+        Err(FaceError::Option {
+            name,
+            value,
+            expected,
+        })
+    };
+    if !(weight >= 0.0 && weight.is_finite()) {
+        return bad("lip weight", weight.to_string(), "non-negative and finite");
+    }
+    if !lips.is_empty() && lips.len() != views.len() {
+        return bad(
+            "lip gaps",
+            format!("{} for {} views", lips.len(), views.len()),
+            "none, or one entry per view",
+        );
+    }
+    if let Some(i) = lips
+        .iter()
+        .position(|g| g.is_some_and(|g| !g.iter().all(|v| v.x.is_finite() && v.y.is_finite())))
+    {
+        return bad("lip gaps", format!("view {i}"), "finite");
+    }
+    Ok(())
+}
+
 impl FaceSpace {
     /// [`FaceSpace::fit_photos`]' start: every photo's pose for the mean face (closed form, then
     /// refined), neutral (`expressions` zero weights).
@@ -964,13 +1136,14 @@ impl FaceSpace {
                 targets: points.iter().map(|p| p / pose.scale).collect(),
                 centre,
                 unit: pose.scale,
+                sees_gaps: false,
             });
         }
         Ok(photos)
     }
 }
 
-impl JointProblem<'_> {
+impl JointProblem {
     /// Levenberg–Marquardt from `weights` and `photos` (moved in place) with a backtracking
     /// search along each direction: the clamping of the expression weights makes a full step
     /// overshoot where a mode reaches a bound, and halving the step is far cheaper than a new
@@ -1048,6 +1221,8 @@ struct PhotoUnknowns {
     centre: Vector2<Real>,
     /// `s₀`.
     unit: Real,
+    /// Whether the photo's inner-lip gaps are among its targets (after the 40 points).
+    sees_gaps: bool,
 }
 
 /// The constants of [`FaceSpace::fit_photos`]'s Levenberg–Marquardt iterations over all
@@ -1061,10 +1236,14 @@ struct PhotoUnknowns {
 /// view direction, the rotation's third row), so they are `Σₐᵦ (δₐᵦ − nₐ nᵦ) Fₐᵦ` with
 /// `Fₐᵦ = Σⱼ ωⱼ Dⱼ[a]ᵀ D'ⱼ[b]` over the modes' displacements, computed once per fit: a photo's
 /// blocks then cost nine products per entry whatever the number of points ([`Products`]).
-struct JointProblem<'a> {
-    space: &'a FaceSpace,
-    expressions: &'a [Vec<Vector3<Real>>],
-    point_weights: &'a [Real; POINT_COUNT],
+struct JointProblem {
+    /// What the photos see of the identity: the 40 points, then the inner-lip gaps when they
+    /// are fitted (`base` the mean face's, `modes` each identity mode's displacement).
+    points: SpaceSamples,
+    /// Each expression mode's displacement of [`JointProblem::points`].
+    expressions: Vec<Vec<Vector3<Real>>>,
+    /// `ωⱼ` of each of [`JointProblem::points`]: the 40 points' weights, then the gaps'.
+    point_weights: Vec<Real>,
     /// `ε² / σₖ²` per identity mode.
     ridge: Vec<Real>,
     /// `ε² / τ²`.
@@ -1076,50 +1255,100 @@ struct JointProblem<'a> {
     shared: usize,
     /// `ε² / τₛ²`.
     shared_ridge: Real,
-    /// `Fₐᵦ` identity × identity, expression × expression and expression × identity.
-    identity_products: Products,
-    expression_products: Products,
-    cross_products: Products,
-    /// The identity and expression modes' structure displacements stacked, `3·40 × K` and
-    /// `3·40 × L` (row `3j + a` is point `j`'s coordinate `a`): a photo's blocks against the
+    /// `Fₐᵦ` identity × identity, expression × expression and expression × identity, over the
+    /// 40 points and, apart, over the gaps (a photo without gaps takes the first only).
+    identity_products: [Products; 2],
+    expression_products: [Products; 2],
+    cross_products: [Products; 2],
+    /// The identity and expression modes' displacements of the points stacked, `3N × K` and
+    /// `3N × L` (row `3j + a` is point `j`'s coordinate `a`): a photo's blocks against the
     /// pose are then one matrix product each.
     identity_stacked: DMatrix<Real>,
     expression_stacked: DMatrix<Real>,
 }
 
-impl<'a> JointProblem<'a> {
+/// The inner-lip gaps of a space ([`FaceSpace::fit_photos_with_lips`]): the mean face's and
+/// each identity mode's, and each expression mode's (empty when the fit has no expressions).
+struct GapSamples {
+    identity: SpaceSamples,
+    expressions: Vec<Vec<Vector3<Real>>>,
+}
+
+impl FaceSpace {
+    /// The gaps of [`crate::structure::INNER_LIP_PAIRS`] on the space's `landmarks`, with the
+    /// expressions' when `with_expressions`.
+    fn lip_gap_samples(&self, landmarks: &SpaceSamples, with_expressions: bool) -> GapSamples {
+        let gaps = |mode: &[Vector3<Real>]| -> Vec<Vector3<Real>> {
+            INNER_LIP_PAIRS
+                .iter()
+                .map(|&(upper, lower)| mode[lower] - mode[upper])
+                .collect()
+        };
+        let base: Vec<Vector3<Real>> = landmarks.base.iter().map(|p| p.coords).collect();
+        GapSamples {
+            identity: SpaceSamples {
+                base: gaps(&base).into_iter().map(Point3::from).collect(),
+                modes: landmarks.modes.iter().map(|m| gaps(m)).collect(),
+            },
+            expressions: if with_expressions {
+                self.expressions.landmarks.iter().map(|m| gaps(m)).collect()
+            } else {
+                Vec::new()
+            },
+        }
+    }
+}
+
+impl JointProblem {
     fn new(
-        space: &'a FaceSpace,
-        expressions: &'a [Vec<Vector3<Real>>],
-        point_weights: &'a [Real; POINT_COUNT],
+        space: &FaceSpace,
+        expressions: &[Vec<Vector3<Real>>],
+        gaps: Option<GapSamples>,
+        point_weights: &[Real; POINT_COUNT],
+        lip_weight: Real,
         noise: Real,
         prior: ExpressionPrior,
     ) -> Self {
-        let identity = &space.structure.modes;
-        let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| Products {
-            rows: left.len(),
-            entries: (0..right.len())
-                .flat_map(|m| {
-                    (0..left.len()).map(move |l| {
-                        std::array::from_fn(|ab| {
-                            let (a, b) = (ab / 3, ab % 3);
-                            (0..POINT_COUNT)
-                                .map(|j| point_weights[j] * left[l][j][a] * right[m][j][b])
-                                .sum()
+        let mut points = space.structure.clone();
+        let mut expressions = expressions.to_vec();
+        let mut weights = point_weights.to_vec();
+        if let Some(gaps) = gaps {
+            points.base.extend(gaps.identity.base);
+            for (mode, extra) in points.modes.iter_mut().zip(gaps.identity.modes) {
+                mode.extend(extra);
+            }
+            for (mode, extra) in expressions.iter_mut().zip(gaps.expressions) {
+                mode.extend(extra);
+            }
+            weights.extend([lip_weight; INNER_LIP_PAIRS.len()]);
+        }
+        let all = points.base.len();
+        let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| {
+            [0..POINT_COUNT, POINT_COUNT..all].map(|range| Products {
+                rows: left.len(),
+                entries: (0..right.len())
+                    .flat_map(|m| {
+                        let range = range.clone();
+                        let weights = &weights;
+                        (0..left.len()).map(move |l| {
+                            std::array::from_fn(|ab| {
+                                let (a, b) = (ab / 3, ab % 3);
+                                range
+                                    .clone()
+                                    .map(|j| weights[j] * left[l][j][a] * right[m][j][b])
+                                    .sum()
+                            })
                         })
                     })
-                })
-                .collect(),
+                    .collect(),
+            })
         };
         let stacked = |modes: &[Vec<Vector3<Real>>]| {
-            DMatrix::from_fn(3 * POINT_COUNT, modes.len(), |row, k| modes[k][row / 3][row % 3])
+            DMatrix::from_fn(3 * all, modes.len(), |row, k| modes[k][row / 3][row % 3])
         };
         JointProblem {
-            space,
-            expressions,
-            point_weights,
-            identity_stacked: stacked(identity),
-            expression_stacked: stacked(expressions),
+            identity_stacked: stacked(&points.modes),
+            expression_stacked: stacked(&expressions),
             ridge: space.ridge(noise),
             expression_ridge: (noise / prior.sigma).powi(2),
             expression_push: noise * noise * prior.rate,
@@ -1129,16 +1358,33 @@ impl<'a> JointProblem<'a> {
                 0
             },
             shared_ridge: prior.shared_sigma.map_or(0.0, |t| (noise / t).powi(2)),
-            identity_products: products(identity, identity),
-            expression_products: products(expressions, expressions),
-            cross_products: products(expressions, identity),
+            identity_products: products(&points.modes, &points.modes),
+            expression_products: products(&expressions, &expressions),
+            cross_products: products(&expressions, &points.modes),
+            point_weights: weights,
+            points,
+            expressions,
+        }
+    }
+
+    /// Whether the fit sees inner-lip gaps.
+    fn with_gaps(&self) -> bool {
+        self.points.base.len() > POINT_COUNT
+    }
+
+    /// `ωⱼ` of point `j` in `photo` (a gap's is zero for a photo without gaps).
+    fn weight(&self, photo: &PhotoUnknowns, j: usize) -> Real {
+        if j < POINT_COUNT || photo.sees_gaps {
+            self.point_weights[j]
+        } else {
+            0.0
         }
     }
 
     /// The identity's points moved by an expression.
     fn shape(&self, identity: &[Point3<Real>], expression: &[Real]) -> Vec<Point3<Real>> {
         let mut shape = identity.to_vec();
-        for (e, mode) in expression.iter().zip(self.expressions) {
+        for (e, mode) in expression.iter().zip(&self.expressions) {
             if *e != 0.0 {
                 for (p, d) in shape.iter_mut().zip(mode) {
                     *p += d * *e;
@@ -1148,20 +1394,28 @@ impl<'a> JointProblem<'a> {
         shape
     }
 
-    /// The photo's residuals for a shape, in its unit.
+    /// The photo's residuals for a shape, in its unit: the points', then the gaps' (which
+    /// take no offset).
     fn residuals(&self, photo: &PhotoUnknowns, shape: &[Point3<Real>]) -> Vec<Vector2<Real>> {
         let rows = photo.rotation.matrix().fixed_rows::<2>(0) * photo.relative_scale;
         shape
             .iter()
             .zip(&photo.targets)
-            .map(|(x, y)| rows * x.coords + photo.shift - y)
+            .enumerate()
+            .map(|(j, (x, y))| {
+                if j < POINT_COUNT {
+                    rows * x.coords + photo.shift - y
+                } else {
+                    rows * x.coords - y
+                }
+            })
             .collect()
     }
 
     /// The objective (times `ε²`).
     fn cost(&self, weights: &[Real], photos: &[PhotoUnknowns]) -> Real {
         let (weights, centre) = weights.split_at(self.ridge.len());
-        let identity = self.space.structure.member(weights);
+        let identity = self.points.member(weights);
         let mut cost: Real = weights
             .iter()
             .zip(&self.ridge)
@@ -1176,8 +1430,8 @@ impl<'a> JointProblem<'a> {
             cost += self
                 .residuals(photo, &shape)
                 .iter()
-                .zip(self.point_weights)
-                .map(|(r, w)| w * r.norm_squared())
+                .enumerate()
+                .map(|(j, r)| self.weight(photo, j) * r.norm_squared())
                 .sum::<Real>();
             cost += photo
                 .expression
@@ -1200,8 +1454,11 @@ impl<'a> JointProblem<'a> {
         let k = weights.len();
         let modes = self.ridge.len();
         let centre = DVector::from_column_slice(&weights[modes..]);
-        let identity = self.space.structure.member(&weights[..modes]);
+        let identity = self.points.member(&weights[..modes]);
+        let all = identity.len();
+        // Σᵢ Mᵢ over every photo, and over the photos that see gaps.
         let mut summed = nalgebra::Matrix3::zeros();
+        let mut summed_gaps = nalgebra::Matrix3::zeros();
         let mut rhs = DVector::from_iterator(
             k,
             weights[..modes]
@@ -1220,28 +1477,36 @@ impl<'a> JointProblem<'a> {
             let n = r.row(2).transpose();
             let m = (nalgebra::Matrix3::identity() - n * n.transpose()) * (b * b);
             summed += m;
+            let m_gaps = if photo.sees_gaps {
+                m
+            } else {
+                nalgebra::Matrix3::zeros()
+            };
+            summed_gaps += m_gaps;
             let shape = self.shape(&identity, &photo.expression);
             let residuals = self.residuals(photo, &shape);
             // pulled = [ωⱼ (b P R)ᵀ rⱼ]ⱼ and q = [ωⱼ ∂rⱼ/∂(δ, b, d)ᵀ (b P R)]ⱼ, stacked over the
             // points, give the gradients in the modes (stackedᵀ pulled) and the pose × mode
             // blocks (q stacked) as matrix products.
-            let mut pulled = DVector::<Real>::zeros(3 * POINT_COUNT);
-            let mut q = DMatrix::<Real>::zeros(6, 3 * POINT_COUNT);
+            let mut pulled = DVector::<Real>::zeros(3 * all);
+            let mut q = DMatrix::<Real>::zeros(6, 3 * all);
             let mut h = DMatrix::<Real>::zeros(6, 6);
             let mut g_pose = nalgebra::Vector6::<Real>::zeros();
-            for j in 0..POINT_COUNT {
-                let wj = self.point_weights[j];
+            for j in 0..all {
+                let wj = self.weight(photo, j);
                 if wj == 0.0 {
                     continue;
                 }
                 let x = shape[j].coords;
-                // ∂r/∂(δ, b, d): −b P R [X]×, P R X, I.
+                // ∂r/∂(δ, b, d): −b P R [X]×, P R X, I (a gap takes no offset d).
                 let jr = -(rows * x.cross_matrix());
                 let mut jp = nalgebra::Matrix2x6::<Real>::zeros();
                 jp.fixed_view_mut::<2, 3>(0, 0).copy_from(&jr);
                 jp.set_column(3, &(rows * x / b));
-                jp[(0, 4)] = 1.0;
-                jp[(1, 5)] = 1.0;
+                if j < POINT_COUNT {
+                    jp[(0, 4)] = 1.0;
+                    jp[(1, 5)] = 1.0;
+                }
                 let jpt = jp.transpose() * wj;
                 h.fixed_view_mut::<6, 6>(0, 0).add_assign(&(jpt * jp));
                 g_pose += jpt * residuals[j];
@@ -1287,15 +1552,15 @@ impl<'a> JointProblem<'a> {
                 h.view_mut((6, 0), (free.len(), 6))
                     .copy_from(&pose_expression.transpose());
                 // The free modes' entries of Σₐᵦ Mₐᵦ Fₐᵦ.
-                let m9 = Products::flat(&m);
+                let m9 = [Products::flat(&m), Products::flat(&m_gaps)];
                 for (f2, &l2) in free.iter().enumerate() {
                     for (f, &l) in free.iter().enumerate() {
-                        h[(6 + f, 6 + f2)] = self.expression_products.contracted(l, l2, &m9);
+                        h[(6 + f, 6 + f2)] = Products::contracted_pair(&self.expression_products, l, l2, &m9);
                     }
                 }
                 for col in 0..modes {
                     for (f, &l) in free.iter().enumerate() {
-                        hw[(6 + f, col)] = self.cross_products.contracted(l, col, &m9);
+                        hw[(6 + f, col)] = Products::contracted_pair(&self.cross_products, l, col, &m9);
                     }
                 }
                 for (f, &l) in free.iter().enumerate() {
@@ -1322,11 +1587,11 @@ impl<'a> JointProblem<'a> {
             rhs -= product.column(k);
             eliminated.push((free, inverse, y));
         }
-        let summed9 = Products::flat(&summed);
+        let summed9 = [Products::flat(&summed), Products::flat(&summed_gaps)];
         // The shared expression's block has no data term: only its prior, on the diagonal.
         let mut whole = DMatrix::from_fn(k, k, |a, b| {
             if a < modes && b < modes {
-                self.identity_products.contracted(a, b, &summed9)
+                Products::contracted_pair(&self.identity_products, a, b, &summed9)
             } else {
                 0.0
             }
@@ -1400,6 +1665,17 @@ impl Products {
     fn contracted(&self, row: usize, col: usize, m: &[Real; 9]) -> Real {
         let entry = &self.entries[col * self.rows + row];
         entry.iter().zip(m).map(|(f, m)| f * m).sum()
+    }
+
+    /// Entry `(row, col)` of `Σₐᵦ (M₀ₐᵦ F₀ₐᵦ + M₁ₐᵦ F₁ₐᵦ)` for products over two sets of
+    /// points (the second skipped while it has no entries or `M₁` is zero).
+    fn contracted_pair(pair: &[Products; 2], row: usize, col: usize, m: &[[Real; 9]; 2]) -> Real {
+        let first = pair[0].contracted(row, col, &m[0]);
+        if pair[1].entries.is_empty() || m[1] == [0.0; 9] {
+            first
+        } else {
+            first + pair[1].contracted(row, col, &m[1])
+        }
     }
 }
 

@@ -151,6 +151,10 @@ pub enum Shape {
         /// sees it ([`crate::face::PhotoFitOptions::outline`]); `false` ties them to fixed
         /// places of the face.
         outline: bool,
+        /// The weight of each photo's inner-lip gaps beside a point's
+        /// ([`crate::face::PhotoFitOptions::lips`]; 0, the default, leaves them out: measured
+        /// at [`crate::face::LIP_WEIGHT`]).
+        lips: Real,
     },
 }
 
@@ -227,6 +231,7 @@ impl Default for Shape {
             noise: Self::DEFAULT_NOISE,
             expressions: Some(ExpressionPrior::DEFAULT),
             outline: true,
+            lips: 0.0,
         }
     }
 }
@@ -490,6 +495,7 @@ fn run(
             noise,
             expressions,
             outline,
+            lips,
         } => reference.face_space().map(|space| {
             (
                 space,
@@ -497,6 +503,7 @@ fn run(
                     noise,
                     expressions,
                     outline,
+                    lips,
                 },
             )
         }),
@@ -791,7 +798,9 @@ fn space_face(
     } = *photos;
     let views: Vec<Vec<nalgebra::Point2<Real>>> = kept.iter().map(|&k| inputs[k].points.y_up()).collect();
     let weights = crate::structure::contour_weighted(options.depth.contour_weight);
-    let mut fit = space.fit_photos(&views, &weights, fit_options)?;
+    let lips: Vec<Option<crate::face::LipGaps>> =
+        kept.iter().map(|&k| inputs[k].points.lip_gaps_y_up()).collect();
+    let mut fit = space.fit_photos_with_lips(&views, &lips, &weights, fit_options)?;
     // The refinement measures the jaw points against the outline the landmark fit found.
     let views: Vec<Vec<nalgebra::Point2<Real>>> = views
         .iter()
@@ -841,6 +850,13 @@ fn space_face(
     }
     if fit_options.outline {
         shape.push_str(", the jaw's points measured on each photo's outline of the face");
+    }
+    let with_lips = lips.iter().filter(|l| l.is_some()).count();
+    if fit_options.lips > 0.0 && space.carries_landmarks() && with_lips > 0 {
+        shape.push_str(&format!(
+            ", an open mouth read from the inner lips of {with_lips} photos (gap weight {})",
+            fit_options.lips
+        ));
     }
     let mut face = match options.expression_of {
         None => space.face(reference, &fit.weights)?,

@@ -156,7 +156,7 @@ pub(crate) fn landmark_file(dir: &Path, stem: &str) -> Option<PathBuf> {
 }
 
 /// A photo's 40 points from a landmark file (`.pts` with 68 iBUG or 40 structure points, or
-/// JSON), named by the file's stem, and the file's own points as read (68 or 40, for the
+/// JSON; with 68 also its inner lips), named by the file's stem, and the file's own points as read (68 or 40, for the
 /// photo's overlay).
 ///
 /// # Errors
@@ -190,7 +190,13 @@ pub(crate) fn read_photo_points(path: &Path) -> Result<(PhotoPoints, Vec<Point2<
         };
         (points, raw)
     };
-    let points = PhotoPoints::new(photo_stem(path), points).map_err(|e| problem(e.to_string()))?;
+    // 68 iBUG points also give the inner lips.
+    let points = if raw.len() == crate::structure::IBUG_POINT_COUNT {
+        PhotoPoints::from_ibug68(photo_stem(path), &raw)
+    } else {
+        PhotoPoints::new(photo_stem(path), points)
+    }
+    .map_err(|e| problem(e.to_string()))?;
     Ok((points, raw))
 }
 

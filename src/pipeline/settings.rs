@@ -26,6 +26,10 @@ pub struct Settings {
     /// Measure the jaw points against the face's outline in each photo ([`Shape::Space`]'s
     /// `outline`).
     pub outline: bool,
+    /// Read an open mouth from the gaps between the inner lips where the landmarks have them
+    /// ([`Shape::Space`]'s `lips`, at [`crate::face::LIP_WEIGHT`]; else 0). Off by default,
+    /// by measurement.
+    pub lips: bool,
     /// Refine the face with the photos' pixels ([`PipelineOptions::refine`]).
     pub refine: bool,
     /// With `refine`, also fit a depth displacement of every control point, the detail the
@@ -55,6 +59,7 @@ impl Default for Settings {
             expression_sigma: Shape::DEFAULT_EXPRESSION_SIGMA,
             expressions: true,
             outline: true,
+            lips: false,
             refine: true,
             displacement: true,
             deformation: "local".into(),
@@ -121,6 +126,7 @@ impl Settings {
                     ..crate::face::ExpressionPrior::DEFAULT
                 }),
                 outline: self.outline,
+                lips: if self.lips { crate::face::LIP_WEIGHT } else { 0.0 },
             },
             "deformed" => Shape::Deformed,
             other => return Err(bad("shape", word(other), "expected space or deformed")),

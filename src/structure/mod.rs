@@ -46,6 +46,24 @@ pub const IBUG_MIRROR: [usize; IBUG_POINT_COUNT] = [
     59, 58, 57, 56, 55, 64, 63, 62, 61, 60, 67, 66, 65,
 ];
 
+/// The inner lips' facing pairs in the iBUG-68 annotation, `(upper, lower)`: 61–67, 62–66 and
+/// 63–65. The 40 points hold the outer lips only, whose height a face's shape varies as
+/// much as an open mouth does; the gap between the inner lips is the open mouth itself
+/// (closed in a neutral face).
+pub const INNER_LIP_PAIRS: [(usize, usize); 3] = [(61, 67), (62, 66), (63, 65)];
+
+/// The inner lips' gaps of iBUG-68 points: for each of [`INNER_LIP_PAIRS`], the lower point
+/// minus the upper one.
+///
+/// # Errors
+/// As [`from_ibug68`].
+pub fn inner_lip_gaps<const D: usize>(
+    ibug: &[Point<Real, D>],
+) -> Result<[SVector<Real, D>; 3], StructureError> {
+    check_points(ibug, IBUG_POINT_COUNT)?;
+    Ok(INNER_LIP_PAIRS.map(|(upper, lower)| ibug[lower] - ibug[upper]))
+}
+
 /// Index of the subject's right eye centre (image left), `O₁ = (−25, 0, 0)` in the canonical
 /// frame.
 pub const RIGHT_EYE_CENTRE: usize = 23;

@@ -235,6 +235,7 @@ fn bad_photos_are_errors_that_name_the_photo() {
     let sneaked = PhotoPoints {
         name: "sneaked".into(),
         points: nan,
+        inner_lips: Vec::new(),
     };
     assert!(
         matches!(procrustes_frontal(&[good.clone(), sneaked]), Err(AlignError::Points { photo, .. }) if photo == "sneaked")
@@ -280,4 +281,29 @@ fn photos_from_68_points_use_the_structure_derivation() {
     );
     let error = PhotoPoints::from_ibug68("few.pts", &ibug[..60]).unwrap_err();
     assert!(error.to_string().starts_with("photo few.pts:"), "{error}");
+    // The inner lips ride along (iBUG 60–67), and give the gaps lower minus upper, y up.
+    assert_eq!(p.inner_lips, ibug[60..68].to_vec());
+    let gaps = p.lip_gaps_y_up().unwrap();
+    for (gap, (upper, lower)) in gaps.iter().zip([(61, 67), (62, 66), (63, 65)]) {
+        let d = ibug[lower] - ibug[upper];
+        assert_eq!(*gap, nalgebra::Vector2::new(d.x, -d.y));
+    }
+    // 40 points alone have none; inner lips of another count or not finite are refused.
+    let forty = PhotoPoints::new("forty.pts", p.points.clone()).unwrap();
+    assert_eq!(forty.lip_gaps_y_up(), None);
+    let short = PhotoPoints {
+        inner_lips: ibug[60..67].to_vec(),
+        ..p.clone()
+    };
+    let error = short.validate().unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "photo x.pts: the inner lips (iBUG 60–67): 7 points, expected none or 8"
+    );
+    let mut nan = p.clone();
+    nan.inner_lips[6].y = Real::NAN;
+    assert_eq!(
+        nan.validate().unwrap_err().to_string(),
+        "photo x.pts: the inner lips (iBUG 60–67): point 66 is not finite"
+    );
 }

@@ -151,12 +151,22 @@ const CORPUS: &[(&str, Kind, &str)] = &[
     (
         "future-reference.json",
         Reference,
-        "format version 99 is not supported (this build reads versions 1 to 4)",
+        "format version 99 is not supported (this build reads versions 1 to 5)",
     ),
     (
         "short-space-reference.json",
         Reference,
         "space: the grid holds 12276 bytes; 1 modes of 1024 control points need 12288",
+    ),
+    (
+        "early-landmarks-reference.json",
+        Reference,
+        "space landmarks need format version 5",
+    ),
+    (
+        "short-landmarks-reference.json",
+        Reference,
+        "space landmarks: the grid holds 804 bytes; 1 modes of 68 landmarks need 816",
     ),
     ("empty-surface.json", Surface, "the file is empty"),
     (

@@ -58,6 +58,7 @@ fn neutral(noise: f64) -> PhotoFitOptions {
         noise,
         expressions: None,
         outline: false,
+        lips: splineface::face::LIP_WEIGHT,
     }
 }
 
@@ -335,23 +336,216 @@ fn implausible_weights_are_held_at_the_priors_edge_and_named() {
     assert!((fit.weights[0] - 0.5).abs() < 1e-3, "{:?}", fit.weights);
 }
 
-/// The synthetic space with two expression modes: a smile-like lift of the face's sides and a
+/// The expressive space's two expression fields: a smile-like lift of the face's sides and a
 /// bulge growing down the face (neither a similarity nor an identity field).
-fn expressive_space() -> FaceSpace {
-    let (mesh, reference) = fixture();
+fn expression_fields(mesh: &TriangleMesh) -> Vec<Vec<Vector3<f64>>> {
     type Field = fn(&Point3<f64>) -> Vector3<f64>;
     let f: [Field; 2] = [
         |p| Vector3::new(0.0, 0.002 * p.x * p.x, 0.0),
         |p| Vector3::new(0.0, 0.0, 0.0015 * p.y * p.y),
     ];
-    let fields: Vec<Vec<Vector3<f64>>> = f
-        .iter()
+    f.iter()
         .map(|f| mesh.positions().iter().map(f).collect())
-        .collect();
+        .collect()
+}
+
+/// The synthetic space with two expression modes, "smile" and "bulge" ([`expression_fields`]).
+fn expressive_space() -> FaceSpace {
+    let (mesh, reference) = fixture();
     let names = ["smile".to_owned(), "bulge".to_owned()];
     space()
-        .with_expression_displacements(reference, mesh, &landmarks(mesh), &names, &fields, "test")
+        .with_expression_displacements(
+            reference,
+            mesh,
+            &landmarks(mesh),
+            &names,
+            &expression_fields(mesh),
+            "test",
+        )
         .unwrap()
+}
+
+#[test]
+fn the_space_moves_the_scans_68_landmarks_with_its_modes() {
+    let (mesh, reference) = fixture();
+    let space = expressive_space();
+    let lm = landmarks(mesh);
+    let (identity, expression) = (fields(mesh), expression_fields(mesh));
+    let (w, e) = ([0.5, -0.8, 0.3], [0.6, 0.2]);
+    let got = space
+        .landmarks(&w, &e)
+        .unwrap()
+        .expect("a space from fields carries them");
+    for (k, &v) in lm.iter().enumerate() {
+        let mut expected = mesh.positions()[v];
+        for (f, c) in identity.iter().zip(&w).chain(expression.iter().zip(&e)) {
+            expected += f[v] * *c;
+        }
+        assert!(
+            (got[k] - expected).norm() < 1e-12,
+            "landmark {k}: {} against {expected}",
+            got[k]
+        );
+    }
+    // Through the file (f32 displacements) and back.
+    let stored = reference
+        .clone()
+        .with_space(Some(space.to_modes("test")))
+        .unwrap();
+    let read = ReferenceFace::from_json(&stored.to_json()).unwrap();
+    let again = read.face_space().unwrap().landmarks(&w, &e).unwrap().unwrap();
+    for (a, b) in again.iter().zip(&got) {
+        assert!((a - b).norm() < 1e-5, "{a} against {b}");
+    }
+    // A space stored without them (as format version 4 stored spaces) has none.
+    let mut modes = space.to_modes("test");
+    modes.landmark_base.clear();
+    modes.landmarks.clear();
+    modes.expressions.landmarks.clear();
+    let without = reference.clone().with_space(Some(modes)).unwrap();
+    assert_eq!(without.face_space().unwrap().landmarks(&w, &e).unwrap(), None);
+}
+
+/// The fixture's space with one expression, "part": the lower inner lip (iBUG 65–67) moved
+/// down by 3 units, and nothing else; none of the 40 points moves.
+fn parting_space() -> FaceSpace {
+    let (mesh, reference) = fixture();
+    let lm = landmarks(mesh);
+    let part: Vec<Vector3<f64>> = (0..mesh.positions().len())
+        .map(|v| {
+            if lm[65..68].contains(&v) {
+                Vector3::new(0.0, -3.0, 0.0)
+            } else {
+                Vector3::zeros()
+            }
+        })
+        .collect();
+    space()
+        .with_expression_displacements(reference, mesh, &lm, &["part".to_owned()], &[part], "test")
+        .unwrap()
+}
+
+/// Views of `space`'s member `identity` with `expression` in every photo, and each photo's
+/// inner-lip gaps, from six poses.
+#[allow(clippy::type_complexity)]
+fn views_and_gaps(
+    space: &FaceSpace,
+    identity: &[f64],
+    expression: &[f64],
+) -> (
+    Vec<Vec<nalgebra::Point2<f64>>>,
+    Vec<Option<splineface::face::LipGaps>>,
+) {
+    use splineface::depth::Pose;
+    let shape = space.structure_with_expression(identity, expression).unwrap();
+    let lm = space.landmarks(identity, expression).unwrap().unwrap();
+    (0..6)
+        .map(|i| {
+            let pose =
+                Pose::from_yaw_pitch_roll_degrees(-40.0 + 16.0 * i as f64, 4.0 * (i % 3) as f64, 2.0, 3.0);
+            let points = shape.iter().map(|p| pose.project(p)).collect();
+            let gaps = splineface::structure::INNER_LIP_PAIRS
+                .map(|(upper, lower)| pose.project(&lm[lower]) - pose.project(&lm[upper]));
+            (points, Some(gaps))
+        })
+        .unzip()
+}
+
+#[test]
+fn the_inner_lips_show_an_expression_the_forty_points_cannot() {
+    let space = parting_space();
+    let identity = [0.5, -0.8, 0.3];
+    let (views, gaps) = views_and_gaps(&space, &identity, &[0.6]);
+    let options = PhotoFitOptions {
+        noise: 1e-6,
+        expressions: Some(ExpressionPrior::independent(1e3)),
+        outline: false,
+        lips: splineface::face::LIP_WEIGHT,
+    };
+    let weights = [1.0; POINT_COUNT];
+    let with = space
+        .fit_photos_with_lips(&views, &gaps, &weights, &options)
+        .unwrap();
+    for (w, t) in with.weights.iter().zip(&identity) {
+        assert!((w - t).abs() < 1e-4, "{:?} against {identity:?}", with.weights);
+    }
+    assert!(
+        with.expressions.iter().all(|e| (e[0] - 0.6).abs() < 1e-4),
+        "{:?}",
+        with.expressions
+    );
+    // Without the gaps nothing shows the parted lips.
+    let without = space.fit_photos(&views, &weights, &options).unwrap();
+    assert!(
+        without.expressions.iter().all(|e| e[0].abs() < 1e-9),
+        "{:?}",
+        without.expressions
+    );
+    // A gap weight of zero is the fit without gaps, to the last digit.
+    let zero = PhotoFitOptions { lips: 0.0, ..options };
+    assert_eq!(
+        space
+            .fit_photos_with_lips(&views, &gaps, &weights, &zero)
+            .unwrap(),
+        without
+    );
+    // Photos without gaps (a landmarker of 40 points) beside photos with them: each photo's
+    // expression comes from its own gaps.
+    let mixed: Vec<_> = gaps
+        .iter()
+        .enumerate()
+        .map(|(i, g)| g.filter(|_| i % 2 == 0))
+        .collect();
+    let fit = space
+        .fit_photos_with_lips(&views, &mixed, &weights, &options)
+        .unwrap();
+    for (i, e) in fit.expressions.iter().enumerate() {
+        let expected = if i % 2 == 0 { 0.6 } else { 0.0 };
+        assert!((e[0] - expected).abs() < 1e-4, "{:?}", fit.expressions);
+    }
+    for (w, t) in fit.weights.iter().zip(&identity) {
+        assert!((w - t).abs() < 1e-4, "{:?} against {identity:?}", fit.weights);
+    }
+}
+
+#[test]
+fn bad_inner_lip_gaps_are_refused() {
+    let space = parting_space();
+    let (views, gaps) = views_and_gaps(&space, &[0.0; 3], &[0.3]);
+    let options = PhotoFitOptions {
+        noise: 1.0,
+        expressions: Some(ExpressionPrior::DEFAULT),
+        outline: false,
+        lips: splineface::face::LIP_WEIGHT,
+    };
+    let weights = [1.0; POINT_COUNT];
+    let refused =
+        |gaps: &[Option<splineface::face::LipGaps>], options: &PhotoFitOptions, needle: &str| match space
+            .fit_photos_with_lips(&views, gaps, &weights, options)
+        {
+            Err(e @ FaceError::Option { .. }) => assert!(e.to_string().contains(needle), "{e}"),
+            other => panic!("expected an option error about {needle}, got {other:?}"),
+        };
+    refused(&gaps[..5], &options, "one entry per view");
+    let mut nan = gaps.clone();
+    nan[3].as_mut().unwrap()[1].y = f64::NAN;
+    refused(&nan, &options, "view 3");
+    refused(
+        &gaps,
+        &PhotoFitOptions {
+            lips: -1.0,
+            ..options
+        },
+        "lip weight",
+    );
+    refused(
+        &gaps,
+        &PhotoFitOptions {
+            lips: f64::INFINITY,
+            ..options
+        },
+        "lip weight",
+    );
 }
 
 /// `n` views of the expressive space's member `identity` wearing `expression` in every photo,
@@ -385,6 +579,7 @@ fn fitted(
         noise,
         expressions: Some(prior),
         outline: false,
+        lips: splineface::face::LIP_WEIGHT,
     };
     let fit = space.fit_photos(views, &[1.0; POINT_COUNT], &options).unwrap();
     fit.expressions.iter().map(|e| e[mode]).collect()
@@ -466,6 +661,7 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
             ..ExpressionPrior::DEFAULT
         }),
         outline: false,
+        lips: splineface::face::LIP_WEIGHT,
     };
     let fit = space.fit_photos(&views, &[1.0; POINT_COUNT], &options).unwrap();
     for (w, t) in fit.weights.iter().zip(&identity) {
@@ -549,6 +745,7 @@ fn the_photo_fit_separates_a_shared_identity_from_each_photos_expression() {
             noise: 1.0,
             expressions: Some(prior),
             outline: false,
+            lips: splineface::face::LIP_WEIGHT,
         };
         assert!(
             matches!(
@@ -675,6 +872,7 @@ fn the_photo_fit_measures_the_jaw_against_the_faces_outline() {
         noise: 1e-3,
         expressions: None,
         outline,
+        lips: splineface::face::LIP_WEIGHT,
     };
     let error = |fit: &splineface::face::PhotoSpaceFit| {
         fit.weights

@@ -73,6 +73,7 @@ fn a_face_with_a_photos_expression_needs_that_photo_and_fitted_expressions() {
         noise: Shape::DEFAULT_NOISE,
         expressions: None,
         outline: true,
+        lips: 0.0,
     };
     let err = run(&with(Some(1), neutral)).unwrap_err();
     assert!(err.to_string().contains("no expressions were fitted"), "{err}");
@@ -1083,6 +1084,7 @@ fn the_jaw_points_are_fitted_on_the_faces_outline() {
                 noise: Shape::DEFAULT_NOISE,
                 expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
                 outline,
+                lips: 0.0,
             },
             refine: None,
             ..PipelineOptions::default()
@@ -1114,4 +1116,73 @@ fn the_jaw_points_are_fitted_on_the_faces_outline() {
         jaw(&with),
         jaw(&without)
     );
+}
+
+#[test]
+fn inner_lips_parted_in_every_photo_open_the_fitted_jaw() {
+    use splineface::align::{FIRST_INNER_LIP, INNER_LIP_COUNT};
+    use splineface::pipeline::Shape;
+    let scene = scene(&SceneOptions {
+        photos: 4,
+        ..SceneOptions::default()
+    })
+    .unwrap();
+    // Each photo's inner lips: on the line between its mouth corners (structure points 36 and
+    // 32, iBUG 48 and 54), the upper ones at the corners' height and the lower ones a fifth of
+    // the mouth's width below (image y down): a mouth held open.
+    let inputs: Vec<_> = scene
+        .inputs
+        .iter()
+        .map(|i| {
+            let p = &i.points.points;
+            let (right, left) = (p[36], p[32]);
+            let width = (left - right).norm();
+            let inner_lips = (0..INNER_LIP_COUNT)
+                .map(|k| {
+                    let ibug = FIRST_INNER_LIP + k;
+                    // 60..64 run right to left along the upper lip, 65..67 back along the lower.
+                    let (t, lower) = match ibug {
+                        60..=64 => ((ibug - 60) as f64 / 4.0, false),
+                        _ => ((68 - ibug) as f64 / 4.0, true),
+                    };
+                    let on_line = right + (left - right) * t;
+                    let drop = if lower { 0.2 * width } else { 0.0 };
+                    nalgebra::Point2::new(on_line.x, on_line.y + drop)
+                })
+                .collect();
+            splineface::pipeline::Input {
+                points: splineface::align::PhotoPoints {
+                    inner_lips,
+                    ..i.points.clone()
+                },
+                image: None,
+            }
+        })
+        .collect();
+    let run = |lips| {
+        let options = PipelineOptions {
+            shape: Shape::Space {
+                noise: Shape::DEFAULT_NOISE,
+                expressions: Some(splineface::face::ExpressionPrior::DEFAULT),
+                outline: true,
+                lips,
+            },
+            ..PipelineOptions::default()
+        };
+        reconstruct(&inputs, ReferenceFace::embedded(), &options, |_| {}).unwrap()
+    };
+    let jaw = |result: &splineface::pipeline::Reconstruction| {
+        let fit = result.space.as_ref().expect("the default shape fits the space");
+        let l = fit.expression_names.iter().position(|n| n == "jawOpen").unwrap();
+        fit.expressions.iter().map(|e| e[l]).sum::<f64>() / fit.expressions.len() as f64
+    };
+    let (with, without) = (run(splineface::face::LIP_WEIGHT), run(0.0));
+    assert!(
+        jaw(&with) > jaw(&without) + 0.05,
+        "jaw open {} with the lips, {} without",
+        jaw(&with),
+        jaw(&without)
+    );
+    assert!(with.shape.contains("inner lips of 4 photos"), "{}", with.shape);
+    assert!(!without.shape.contains("inner lips"), "{}", without.shape);
 }

@@ -217,6 +217,7 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
                 noise: 4.0,
                 expressions: None,
                 outline: false,
+                lips: splineface::face::LIP_WEIGHT,
             },
         )
         .unwrap();

@@ -1569,6 +1569,15 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         noise,
         expressions,
         outline: true,
+        lips: 0.0,
+    };
+    // The default with the inner-lip gaps at this weight (the default leaves them out).
+    let lips = |weight: Real| {
+        with(&move |o: &mut PipelineOptions| {
+            if let Shape::Space { lips, .. } = &mut o.shape {
+                *lips = weight;
+            }
+        })
     };
     let all = vec![
         method("default", default),
@@ -1685,6 +1694,17 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             )
         },
         method("landmarks only", with(&|o| o.refine = None)),
+        method("lips", lips(splineface::face::LIP_WEIGHT)),
+        method("lips 2", lips(2.0)),
+        method(
+            "landmarks only lips",
+            with(&|o| {
+                o.refine = None;
+                if let Shape::Space { lips, .. } = &mut o.shape {
+                    *lips = splineface::face::LIP_WEIGHT;
+                }
+            }),
+        ),
         method(
             "jaw fixed",
             with(&|o| {

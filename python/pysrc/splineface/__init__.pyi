@@ -37,6 +37,7 @@ class _Settings(TypedDict, total=False):
     expression_sigma: float  # the prior deviation of each photo's expression [0.5]
     expressions: bool  # fit an expression per photo [True]
     outline: bool  # measure the jaw's landmarks against the face's outline in each photo [True]
+    lips: bool  # read an open mouth from the gaps between the inner lips (68-point landmarks) [False]
     refine: bool  # refine with the photos' pixels [True]
     displacement: bool  # with refine, also fit a depth displacement of the control grid [True]
     deformation: str  # "local" ["local"] or "affine", for shape="deformed"

@@ -107,7 +107,9 @@ pub(crate) struct FitReferenceArgs {
     /// scan, as little-endian float32 `[mode][vertex][x, y, z]` in the scan's own frame and
     /// units (the size must be a multiple of the scan's vertices × 12 bytes), each the
     /// displacement of one prior standard deviation (a plausible face is
-    /// `scan + Σ wₖ·modeₖ` with `wₖ ~ N(0, 1)`). Needs the landmarks as vertex indices.
+    /// `scan + Σ wₖ·modeₖ` with `wₖ ~ N(0, 1)`). Needs the landmarks as vertex indices; the
+    /// space stores how every mode moves those 68 vertices too (the photo fit reads an open
+    /// mouth from the inner lips).
     #[arg(long, value_name = "FILE")]
     pub(crate) identity_modes: Option<PathBuf>,
     /// Expression modes (blendshapes) of the face space, laid out like `--identity-modes`,
@@ -315,6 +317,11 @@ pub(crate) struct OutputArgs {
     /// measurement).
     #[arg(long)]
     pub(crate) no_outline: bool,
+    /// Read an open mouth from the gaps between the inner lips in the face-space fit, where the
+    /// landmarks have the 68 iBUG points (off by default: on rendered photos it did not pay,
+    /// see `splineface::face::LIP_WEIGHT`).
+    #[arg(long)]
+    pub(crate) lips: bool,
     /// Make the face with this photo's expression (its file stem, as the report names it)
     /// instead of the neutral identity.
     #[arg(long, value_name = "PHOTO")]
@@ -378,6 +385,7 @@ impl OutputArgs {
             expression_sigma: self.expression_sigma,
             expressions: !self.no_expressions,
             outline: !self.no_outline,
+            lips: self.lips,
             refine: !self.no_refine,
             displacement: !self.no_displacement,
             deformation: self.deformation.clone(),
