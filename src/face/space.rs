@@ -743,6 +743,15 @@ pub struct PhotoFitOptions {
 /// brings the neutral back part of the way and the jaw no further. The rendered subjects'
 /// mouths have nothing inside them; a real open mouth (teeth, a dark inside) may be read
 /// otherwise, which these photos cannot say.
+///
+/// On the main evaluation (`tools/photo_eval --methods lips` against the committed
+/// `tools/results/photos.md`, 105 sets; mean ratio to the mean face for 2 / 3 / 4 / 8 / 16
+/// photos) the gaps at this weight give 0.78 / 0.71 / 0.69 / 0.67 / 0.63 against the default's
+/// 0.78 / 0.72 / 0.70 / 0.66 / 0.62: on average 0.003 worse per set, from 0.21 better to 0.09
+/// worse, and the widest pair of halves of 16 photos 0.80 mm apart against 0.70. The real
+/// scan, the one face with a real mouth, gains a little: its 15 sets 0.825× the mean face
+/// against 0.834× (10 better, 1 worse: `photos-8` 1.09 mm against 1.08). One scan is too thin
+/// a basis to turn them on.
 pub const LIP_WEIGHT: Real = 0.5;
 
 /// A photo's inner-lip gaps, `y` up, in its pixels ([`crate::structure::inner_lip_gaps`]).
