@@ -41,20 +41,7 @@ fn the_embedded_demo_subject_is_valid_and_not_the_reference() {
 #[test]
 fn a_face_with_a_photos_expression_needs_that_photo_and_fitted_expressions() {
     use splineface::pipeline::{PipelineError, Shape};
-    let scene = scene(&SceneOptions {
-        photos: 4,
-        ..SceneOptions::default()
-    })
-    .unwrap();
-    // Points only: fast, and enough for the shape.
-    let inputs: Vec<_> = scene
-        .inputs
-        .iter()
-        .map(|i| splineface::pipeline::Input {
-            points: i.points.clone(),
-            image: None,
-        })
-        .collect();
+    let inputs = points_only(4, Clone::clone);
     let with = |expression_of, shape| PipelineOptions {
         expression_of,
         shape,
@@ -1122,43 +1109,31 @@ fn the_jaw_points_are_fitted_on_the_faces_outline() {
 fn inner_lips_parted_in_every_photo_open_the_fitted_jaw() {
     use splineface::align::{FIRST_INNER_LIP, INNER_LIP_COUNT};
     use splineface::pipeline::Shape;
-    let scene = scene(&SceneOptions {
-        photos: 4,
-        ..SceneOptions::default()
-    })
-    .unwrap();
     // Each photo's inner lips: on the line between its mouth corners (structure points 36 and
     // 32, iBUG 48 and 54), the upper ones at the corners' height and the lower ones a fifth of
     // the mouth's width below (image y down): a mouth held open.
-    let inputs: Vec<_> = scene
-        .inputs
-        .iter()
-        .map(|i| {
-            let p = &i.points.points;
-            let (right, left) = (p[36], p[32]);
-            let width = (left - right).norm();
-            let inner_lips = (0..INNER_LIP_COUNT)
-                .map(|k| {
-                    let ibug = FIRST_INNER_LIP + k;
-                    // 60..64 run right to left along the upper lip, 65..67 back along the lower.
-                    let (t, lower) = match ibug {
-                        60..=64 => ((ibug - 60) as f64 / 4.0, false),
-                        _ => ((68 - ibug) as f64 / 4.0, true),
-                    };
-                    let on_line = right + (left - right) * t;
-                    let drop = if lower { 0.2 * width } else { 0.0 };
-                    nalgebra::Point2::new(on_line.x, on_line.y + drop)
-                })
-                .collect();
-            splineface::pipeline::Input {
-                points: splineface::align::PhotoPoints {
-                    inner_lips,
-                    ..i.points.clone()
-                },
-                image: None,
-            }
-        })
-        .collect();
+    let inputs = points_only(4, |photo| {
+        let p = &photo.points;
+        let (right, left) = (p[36], p[32]);
+        let width = (left - right).norm();
+        let inner_lips = (0..INNER_LIP_COUNT)
+            .map(|k| {
+                let ibug = FIRST_INNER_LIP + k;
+                // 60..64 run right to left along the upper lip, 65..67 back along the lower.
+                let (t, lower) = match ibug {
+                    60..=64 => ((ibug - 60) as f64 / 4.0, false),
+                    _ => ((68 - ibug) as f64 / 4.0, true),
+                };
+                let on_line = right + (left - right) * t;
+                let drop = if lower { 0.2 * width } else { 0.0 };
+                nalgebra::Point2::new(on_line.x, on_line.y + drop)
+            })
+            .collect();
+        splineface::align::PhotoPoints {
+            inner_lips,
+            ..photo.clone()
+        }
+    });
     let run = |lips| {
         let options = PipelineOptions {
             shape: Shape::Space {
@@ -1185,4 +1160,25 @@ fn inner_lips_parted_in_every_photo_open_the_fitted_jaw() {
     );
     assert!(with.shape.contains("inner lips of 4 photos"), "{}", with.shape);
     assert!(!without.shape.contains("inner lips"), "{}", without.shape);
+}
+
+/// The demo scene's first `photos` photos as points only (fast, and enough for the shape), each
+/// photo's points made by `points` from the scene's.
+fn points_only(
+    photos: usize,
+    points: impl Fn(&splineface::align::PhotoPoints) -> splineface::align::PhotoPoints,
+) -> Vec<splineface::pipeline::Input> {
+    let scene = scene(&SceneOptions {
+        photos,
+        ..SceneOptions::default()
+    })
+    .unwrap();
+    scene
+        .inputs
+        .iter()
+        .map(|i| splineface::pipeline::Input {
+            points: points(&i.points),
+            image: None,
+        })
+        .collect()
 }
