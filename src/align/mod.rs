@@ -92,10 +92,8 @@ impl PhotoPoints {
     /// [`PhotoPoints::inner_lips`].
     pub fn lip_gaps_y_up(&self) -> Option<[Vector2<Real>; 3]> {
         (self.inner_lips.len() == INNER_LIP_COUNT).then(|| {
-            structure::INNER_LIP_PAIRS.map(|(upper, lower)| {
-                let d = self.inner_lips[lower - FIRST_INNER_LIP] - self.inner_lips[upper - FIRST_INNER_LIP];
-                Vector2::new(d.x, -d.y)
-            })
+            structure::inner_lip_gaps(|i| self.inner_lips[i - FIRST_INNER_LIP].coords)
+                .map(|d| Vector2::new(d.x, -d.y))
         })
     }
 

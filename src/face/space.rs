@@ -12,7 +12,7 @@ use crate::bspline::{BSplineSurface, SpaceSamples, SurfaceSpace};
 use crate::depth::Pose;
 use crate::mesh::{ClosestPoints, TriangleMesh, front_hits};
 use crate::reference::{ExpressionModes, ReferenceFace};
-use crate::structure::{IBUG_POINT_COUNT, INNER_LIP_PAIRS, POINT_COUNT, from_ibug68};
+use crate::structure::{IBUG_POINT_COUNT, INNER_LIP_PAIRS, POINT_COUNT, from_ibug68, inner_lip_gaps};
 
 /// A linear face space: the reference's surface and structure plus `K` modes,
 ///
@@ -913,8 +913,7 @@ impl FaceSpace {
         point_weights: &[Real; POINT_COUNT],
         options: &PhotoFitOptions,
     ) -> Result<PhotoSpaceFit, FaceError> {
-        let (noise, total) = check_photo_fit(views, point_weights, options)?;
-        check_lips(views, lips, options.lips)?;
+        let (noise, total) = check_photo_fit(views, lips, point_weights, options)?;
         let expression_modes: &[Vec<Vector3<Real>>] = match options.expressions {
             Some(_) => &self.expressions.structure,
             None => &[],
@@ -1014,11 +1013,13 @@ impl FaceSpace {
     }
 }
 
-/// [`FaceSpace::fit_photos`]' checks: some views of 40 finite points, a positive noise and
-/// expression deviation, finite non-negative point weights not all zero. Returns the noise
-/// and the weights' sum.
+/// [`FaceSpace::fit_photos_with_lips`]' checks: some views of 40 finite points, a positive
+/// noise and expression deviation, finite non-negative point weights not all zero, a finite
+/// non-negative gap weight, and no gaps or one entry per view, finite where given. Returns the
+/// noise and the weights' sum.
 fn check_photo_fit(
     views: &[Vec<Point2<Real>>],
+    lips: &[Option<LipGaps>],
     point_weights: &[Real; POINT_COUNT],
     options: &PhotoFitOptions,
 ) -> Result<(Real, Real), FaceError> {
@@ -1076,19 +1077,7 @@ fn check_photo_fit(
             "finite, non-negative, not all zero",
         );
     }
-    Ok((noise, total))
-}
-
-/// [`FaceSpace::fit_photos_with_lips`]' checks of the gaps: none, or one entry per view, each
-/// finite where given, and a finite non-negative weight.
-fn check_lips(views: &[Vec<Point2<Real>>], lips: &[Option<LipGaps>], weight: Real) -> Result<(), FaceError> {
-    let bad = |name: &'static str, value: String, expected: &'static str| {
-        Err(FaceError::Option {
-            name,
-            value,
-            expected,
-        })
-    };
+    let weight = options.lips;
     if !(weight >= 0.0 && weight.is_finite()) {
         return bad("lip weight", weight.to_string(), "non-negative and finite");
     }
@@ -1105,7 +1094,7 @@ fn check_lips(views: &[Vec<Point2<Real>>], lips: &[Option<LipGaps>], weight: Rea
     {
         return bad("lip gaps", format!("view {i}"), "finite");
     }
-    Ok(())
+    Ok((noise, total))
 }
 
 impl FaceSpace {
@@ -1293,16 +1282,12 @@ impl FaceSpace {
     /// The gaps of [`crate::structure::INNER_LIP_PAIRS`] on the space's `landmarks`, with the
     /// expressions' when `with_expressions`.
     fn lip_gap_samples(&self, landmarks: &SpaceSamples, with_expressions: bool) -> GapSamples {
-        let gaps = |mode: &[Vector3<Real>]| -> Vec<Vector3<Real>> {
-            INNER_LIP_PAIRS
-                .iter()
-                .map(|&(upper, lower)| mode[lower] - mode[upper])
-                .collect()
-        };
-        let base: Vec<Vector3<Real>> = landmarks.base.iter().map(|p| p.coords).collect();
+        let gaps = |mode: &[Vector3<Real>]| inner_lip_gaps(|i| mode[i]).to_vec();
         GapSamples {
             identity: SpaceSamples {
-                base: gaps(&base).into_iter().map(Point3::from).collect(),
+                base: inner_lip_gaps(|i| landmarks.base[i].coords)
+                    .map(Point3::from)
+                    .to_vec(),
                 modes: landmarks.modes.iter().map(|m| gaps(m)).collect(),
             },
             expressions: if with_expressions {

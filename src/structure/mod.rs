@@ -52,16 +52,10 @@ pub const IBUG_MIRROR: [usize; IBUG_POINT_COUNT] = [
 /// (closed in a neutral face).
 pub const INNER_LIP_PAIRS: [(usize, usize); 3] = [(61, 67), (62, 66), (63, 65)];
 
-/// The inner lips' gaps of iBUG-68 points: for each of [`INNER_LIP_PAIRS`], the lower point
-/// minus the upper one.
-///
-/// # Errors
-/// As [`from_ibug68`].
-pub fn inner_lip_gaps<const D: usize>(
-    ibug: &[Point<Real, D>],
-) -> Result<[SVector<Real, D>; 3], StructureError> {
-    check_points(ibug, IBUG_POINT_COUNT)?;
-    Ok(INNER_LIP_PAIRS.map(|(upper, lower)| ibug[lower] - ibug[upper]))
+/// The inner lips' gaps: for each of [`INNER_LIP_PAIRS`], the lower point minus the upper
+/// one, `at(i)` giving iBUG point `i` (a place, or a mode's displacement of it).
+pub fn inner_lip_gaps<V: std::ops::Sub<Output = V>>(at: impl Fn(usize) -> V) -> [V; 3] {
+    INNER_LIP_PAIRS.map(|(upper, lower)| at(lower) - at(upper))
 }
 
 /// Index of the subject's right eye centre (image left), `O₁ = (−25, 0, 0)` in the canonical
