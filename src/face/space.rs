@@ -1324,9 +1324,10 @@ impl JointProblem {
         }
         let all = points.base.len();
         let products = |left: &[Vec<Vector3<Real>>], right: &[Vec<Vector3<Real>>]| {
+            // Without gaps the second set has no entries (what `contracted_pair` skips).
             [0..POINT_COUNT, POINT_COUNT..all].map(|range| Products {
                 rows: left.len(),
-                entries: (0..right.len())
+                entries: (0..if range.is_empty() { 0 } else { right.len() })
                     .flat_map(|m| {
                         let range = range.clone();
                         let weights = &weights;
