@@ -305,6 +305,23 @@ pub struct RefineOptions {
     /// neutral photos do (`tools/results/expressions.md`, its oracle section). The shift moves
     /// a smile part of the way (0.23 to 0.44 on one subject's eight photos) and an open jaw
     /// hardly at all.
+    ///
+    /// Two other answers to the half-found expressions were measured and dropped (temporary
+    /// switches, `photo_eval --expressions --seeds 2 --counts 3,8 --methods default`; neutral,
+    /// smile, jaw open, 3 / 8 photos; then smile / neutral and jaw / neutral):
+    ///
+    /// | variant | neutral | smile | jaw open | smile / neutral | jaw / neutral |
+    /// |---|---|---|---|---|---|
+    /// | **the landmark fit's expressions** | 0.69 / 0.57 | 0.75 / 0.70 | 0.74 / 0.68 | 1.12 / 1.22 | 1.09 / 1.19 |
+    /// | a sample counts `1 / (1 + (‖Gₛ eᵢ‖ / 1 unit)²)` in photo `i` | 0.75 / 0.59 | 0.86 / 0.81 | 0.80 / 0.66 | 1.19 / 1.37 | 1.10 / 1.13 |
+    /// | every expression weight × 1.7 before the refinement (clamped to `[0, 1]`) | 0.72 / 0.60 | 0.77 / 0.70 | 0.82 / 0.78 | 1.11 / 1.19 | 1.16 / 1.31 |
+    ///
+    /// Trusting less the pixels an expression moves (the mouth and cheeks of a smile) takes
+    /// away what the refinement gains there: the smile's pixels help the neutral face more
+    /// than the expression's error in them hurts it. Scaled up before the refinement, the
+    /// landmark fit's expressions leave the smile as it was and make the open jaw and the
+    /// neutral photos (whose small weights grow too) worse: what the fit finds is not simply
+    /// the true expression scaled down.
     pub expression_shift: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
