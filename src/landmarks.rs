@@ -388,14 +388,44 @@ pub fn read_mesh_structure(
     path: &Path,
     mesh: &crate::mesh::TriangleMesh,
 ) -> Result<Vec<Point3<Real>>, LandmarkError> {
+    read_mesh_landmarks(path, mesh).map(|l| l.structure)
+}
+
+/// A scan's landmarks as [`read_mesh_landmarks`] reads them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MeshLandmarks {
+    /// The 40-point structure.
+    pub structure: Vec<Point3<Real>>,
+    /// The 68 iBUG points it was made from, when the file gives them.
+    pub ibug: Option<Vec<Point3<Real>>>,
+}
+
+/// [`read_mesh_structure`], with the 68 iBUG points themselves when the file gives them (68
+/// vertex indices, or a JSON file of the `ibug68` scheme); none for a file of the structure's
+/// 40 points.
+///
+/// # Errors
+/// As [`read_mesh_structure`].
+pub fn read_mesh_landmarks(
+    path: &Path,
+    mesh: &crate::mesh::TriangleMesh,
+) -> Result<MeshLandmarks, LandmarkError> {
     if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
-        return read_landmarks_json(path)?
-            .structure_3d()
-            .map_err(|problem| error(path, problem));
+        let landmarks = read_landmarks_json(path)?;
+        let structure = landmarks.structure_3d().map_err(|problem| error(path, problem))?;
+        let ibug = match (landmarks.scheme, landmarks.points) {
+            (Scheme::Ibug68, LandmarkPoints::Spatial(points)) => Some(points),
+            _ => None,
+        };
+        return Ok(MeshLandmarks { structure, ibug });
     }
     let indices = read_vertex_indices(path, crate::structure::IBUG_POINT_COUNT, mesh.positions().len())?;
     let points: Vec<_> = indices.iter().map(|&i| mesh.positions()[i]).collect();
-    structure(&points, Scheme::Ibug68).map_err(|problem| error(path, problem))
+    let structure = structure(&points, Scheme::Ibug68).map_err(|problem| error(path, problem))?;
+    Ok(MeshLandmarks {
+        structure,
+        ibug: Some(points),
+    })
 }
 
 /// Reads a JSON landmark file (the form is on [`parse_landmarks_json`]).

@@ -705,13 +705,17 @@ pub struct ReferenceScan {
     pub mesh: TriangleMesh,
     /// Its 40-point structure, in the same frame.
     pub structure: Vec<Point3<Real>>,
+    /// Its 68 iBUG landmarks, in the same frame, when its landmark file gives them (the
+    /// structure is made from them): a face space learnt from scans that all have them
+    /// ([`build_reference_with_space`]) moves them with its modes.
+    pub landmarks: Option<Vec<Point3<Real>>>,
     /// Where it came from.
     pub source: ReferenceSource,
 }
 
 impl ReferenceScan {
     /// A scan from its mesh file (OBJ, PLY, glTF or GLB) and its landmark file
-    /// ([`crate::landmarks::read_mesh_structure`]: 3D JSON or 68 vertex indices), with its
+    /// ([`crate::landmarks::read_mesh_landmarks`]: 3D JSON or 68 vertex indices), with its
     /// source recorded: the files' names, the mesh's size and the FNV-1a hash of its bytes.
     ///
     /// # Errors
@@ -725,7 +729,8 @@ impl ReferenceScan {
                 problem: e.into(),
             }
         })?;
-        let structure = crate::landmarks::read_mesh_structure(landmarks, &mesh)?;
+        let crate::landmarks::MeshLandmarks { structure, ibug } =
+            crate::landmarks::read_mesh_landmarks(landmarks, &mesh)?;
         let name = |path: &std::path::Path| {
             path.file_name().map_or_else(
                 || path.display().to_string(),
@@ -742,6 +747,7 @@ impl ReferenceScan {
             },
             mesh,
             structure,
+            landmarks: ibug,
         })
     }
 }
@@ -866,6 +872,9 @@ struct Prepared {
     /// The mean structure and each scan's, canonical frame.
     mean: Vec<Point3<Real>>,
     structures: Vec<Vec<Point3<Real>>>,
+    /// Each scan's 68 iBUG landmarks, canonical frame, when every scan has them
+    /// ([`ReferenceScan::landmarks`]).
+    landmarks: Option<Vec<Vec<Point3<Real>>>>,
     frame: FrontalFrame,
     clip: Vec<Point2<Real>>,
     /// The samples where every scan has surface, inside the fitted region: their parameters,
@@ -901,11 +910,19 @@ fn prepare(scans: &[ReferenceScan], options: &ReferenceOptions) -> Result<Prepar
     // 1. Unify every scan; the reference structure is the mean.
     let mut meshes = Vec::with_capacity(scans.len());
     let mut structures = Vec::with_capacity(scans.len());
+    let mut landmarks = Some(Vec::with_capacity(scans.len()));
     let mut mean = vec![Point3::origin(); POINT_COUNT];
     for (k, scan) in scans.iter().enumerate() {
         let (similarity, canonical) =
             unify(&scan.structure).map_err(|source| ReferenceError::Structure { scan: k, source })?;
         meshes.push(scan.mesh.transformed(&nalgebra::convert(similarity)));
+        if let Some(points) = &scan.landmarks {
+            check_scan_landmarks(k, points)?;
+        }
+        landmarks = landmarks.zip(scan.landmarks.as_ref()).map(|(mut all, points)| {
+            all.push(points.iter().map(|p| similarity * p).collect::<Vec<_>>());
+            all
+        });
         for (m, p) in mean.iter_mut().zip(&canonical) {
             m.coords += p.coords / scans.len() as Real;
         }
@@ -959,11 +976,31 @@ fn prepare(scans: &[ReferenceScan], options: &ReferenceOptions) -> Result<Prepar
     Ok(Prepared {
         mean,
         structures,
+        landmarks,
         frame,
         clip,
         params,
         xy,
         heights,
+    })
+}
+
+/// Refuses scan `k`'s 68 landmarks ([`ReferenceScan::landmarks`]) unless there are 68 and all
+/// are finite.
+fn check_scan_landmarks(k: usize, points: &[Point3<Real>]) -> Result<(), ReferenceError> {
+    let problem = if points.len() != IBUG_POINT_COUNT {
+        Some(StructureError::WrongPointCount {
+            got: points.len(),
+            expected: IBUG_POINT_COUNT,
+        })
+    } else {
+        points
+            .iter()
+            .position(|p| !p.iter().all(|c| c.is_finite()))
+            .map(|index| StructureError::NonFinitePoint { index })
+    };
+    problem.map_or(Ok(()), |source| {
+        Err(ReferenceError::Structure { scan: k, source })
     })
 }
 
@@ -1018,8 +1055,16 @@ pub fn build_reference_with_space(
     let scale = 1.0 / ((n - 1) as Real).sqrt();
     let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
     order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+    // The scans' 68 landmarks (when every scan has them) move with the same coefficients as
+    // their grids and structures, about their mean.
+    let landmark_base: Vec<Point3<Real>> = prepared.landmarks.as_ref().map_or_else(Vec::new, |all| {
+        (0..IBUG_POINT_COUNT)
+            .map(|j| Point3::from(all.iter().map(|l| l[j].coords).sum::<Vector3<Real>>() / n as Real))
+            .collect()
+    });
     let mut grid_modes = Vec::new();
     let mut structure_modes = Vec::new();
+    let mut landmark_modes = Vec::new();
     for k in order.into_iter().take(n - 1) {
         if svd.singular_values[k].is_nan() || svd.singular_values[k] <= 1e-9 * largest {
             continue;
@@ -1038,6 +1083,15 @@ pub fn build_reference_with_space(
                 *d += (p - m) * *c;
             }
         }
+        if let Some(all) = &prepared.landmarks {
+            let mut landmarks = vec![Vector3::zeros(); IBUG_POINT_COUNT];
+            for (l, c) in all.iter().zip(&coefficients) {
+                for (d, (p, m)) in landmarks.iter_mut().zip(l.iter().zip(&landmark_base)) {
+                    *d += (p - m) * *c;
+                }
+            }
+            landmark_modes.push(landmarks);
+        }
         grid_modes.push(grid);
         structure_modes.push(structure);
     }
@@ -1049,9 +1103,8 @@ pub fn build_reference_with_space(
             "The principal components of the {n} scans' own grids (fit-reference --space-from-scans); {note}"
         ),
         expressions: ExpressionModes::default(),
-        // The scans' 68 landmarks are reduced to their structures before this point.
-        landmark_base: Vec::new(),
-        landmarks: Vec::new(),
+        landmark_base,
+        landmarks: landmark_modes,
     };
     reference.with_space(Some(space))
 }

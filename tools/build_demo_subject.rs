@@ -31,6 +31,7 @@ fn main() -> Result<()> {
     let scan = ReferenceScan {
         mesh: subject.mesh.clone(),
         structure: subject.structure.clone(),
+        landmarks: None,
         source: ReferenceSource {
             mesh: format!(
                 "ICT-FaceKit identity (seed {SEED}, w ~ N(0, 0.8^2)) + mild smile and raised brows"

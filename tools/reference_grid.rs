@@ -75,6 +75,7 @@ fn main() -> Result<()> {
     let scan = ReferenceScan {
         mesh,
         structure,
+        landmarks: None,
         source: ReferenceSource {
             mesh: "neutral_face.obj".into(),
             mesh_fnv1a64: String::new(),

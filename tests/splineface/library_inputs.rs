@@ -10,7 +10,7 @@ use splineface::compare::{CompareOptions, LengthUnit, MeshFiles, compare_files};
 use splineface::face::modes::{ModeFileProblem, read_displacement_fields};
 use splineface::face::{MeanFace, MeshOptions, Units};
 use splineface::io::{OutputError, check_output_file};
-use splineface::landmarks::{LandmarkProblem, read_mesh_structure};
+use splineface::landmarks::{LandmarkProblem, read_mesh_landmarks, read_mesh_structure};
 use splineface::mesh::{PlyEncoding, TriangleMesh, encode_ply};
 use splineface::reference::ReferenceFace;
 
@@ -152,6 +152,33 @@ fn a_scans_landmark_file_is_read_as_3d_json_or_vertex_indices() {
     let structure = read_mesh_structure(&indices, &mesh).unwrap();
     let expected = splineface::structure::from_ibug68(&mesh.positions()[..68]).unwrap();
     assert_eq!(structure, expected);
+    // With the 68 points themselves, in their order.
+    let read = read_mesh_landmarks(&indices, &mesh).unwrap();
+    assert_eq!(read.structure, expected);
+    assert_eq!(read.ibug.as_deref(), Some(&mesh.positions()[..68]));
+    // 3D JSON: the 68 points of the ibug68 scheme, none from the structure's 40.
+    let json3 = dir.join("landmarks3.json");
+    let ibug: Vec<[Real; 3]> = (0..68).map(|k| [k as Real, (k * k % 5) as Real, 2.0]).collect();
+    std::fs::write(
+        &json3,
+        serde_json::json!({ "format": "splineface/landmarks", "version": 1, "scheme": "ibug68", "points": ibug }).to_string(),
+    )
+    .unwrap();
+    let read = read_mesh_landmarks(&json3, &mesh).unwrap();
+    let points: Vec<Point3<Real>> = ibug.iter().map(|p| Point3::from(*p)).collect();
+    assert_eq!(read.ibug.as_deref(), Some(&points[..]));
+    assert_eq!(
+        read.structure,
+        splineface::structure::from_ibug68(&points).unwrap()
+    );
+    let forty: Vec<[Real; 3]> = read.structure.iter().map(|p| [p.x, p.y, p.z]).collect();
+    std::fs::write(
+        &json3,
+        serde_json::json!({ "format": "splineface/landmarks", "version": 1, "scheme": "structure40", "points": forty }).to_string(),
+    )
+    .unwrap();
+    let read = read_mesh_landmarks(&json3, &mesh).unwrap();
+    assert_eq!((read.structure.len(), read.ibug), (40, None));
     // An index past the mesh's end is named with its line.
     std::fs::write(
         &indices,

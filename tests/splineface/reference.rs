@@ -84,6 +84,7 @@ pub(crate) fn height_field_scan(
     ReferenceScan {
         mesh: TriangleMesh::new(positions, triangles).unwrap(),
         structure,
+        landmarks: None,
         source: source("synthetic"),
     }
 }
@@ -406,6 +407,7 @@ fn a_moved_scan_gives_the_same_reference() {
     let moved = ReferenceScan {
         mesh: scan.mesh.transformed(&nalgebra::convert(motion)),
         structure: scan.structure.iter().map(|p| motion * p).collect(),
+        landmarks: None,
         source: source("moved"),
     };
     let other = build_reference(std::slice::from_ref(&moved), &options, "").unwrap();
@@ -613,6 +615,55 @@ fn synthetic_ibug_vertices(scan: &ReferenceScan) -> Vec<usize> {
         .collect()
 }
 
+#[test]
+fn the_command_learns_a_space_and_its_landmarks_from_scans() {
+    let mut args: Vec<String> = vec![
+        "fit-reference".into(),
+        "--space-from-scans".into(),
+        "--grid".into(),
+        "12".into(),
+    ];
+    let mut expected = vec![Vector3::zeros(); 68];
+    let shapes = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0)];
+    for (k, &(a, b)) in shapes.iter().enumerate() {
+        let scan = varied_scan(a, b);
+        let mesh = scratch(&format!("learnt-{k}.obj"));
+        write_mesh(&mesh, &scan.mesh).unwrap();
+        let indices = synthetic_ibug_vertices(&scan);
+        let landmarks = scratch(&format!("learnt-{k}.txt"));
+        let list: Vec<String> = indices.iter().map(ToString::to_string).collect();
+        std::fs::write(&landmarks, list.join("\n")).unwrap();
+        // What the space's base must be: the mean of the landmark vertices, each scan in the
+        // canonical frame its own structure (made from those vertices) gives it.
+        let ibug: Vec<Point3<f64>> = indices.iter().map(|&i| scan.mesh.positions()[i]).collect();
+        let (to_canonical, _) = splineface::structure::unify(&from_ibug68(&ibug).unwrap()).unwrap();
+        for (e, p) in expected.iter_mut().zip(&ibug) {
+            *e += (to_canonical * p).coords / shapes.len() as f64;
+        }
+        for (flag, path) in [("--mesh", mesh), ("--landmarks", landmarks)] {
+            args.push(flag.into());
+            args.push(path.to_str().unwrap().into());
+        }
+    }
+    let out = scratch("learnt-space.json");
+    let _ = std::fs::remove_file(&out);
+    args.extend(["--out".into(), out.to_str().unwrap().into()]);
+    let run = splineface(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("moving the 68 landmarks"),
+        "{}",
+        String::from_utf8_lossy(&run.stdout)
+    );
+    let reference = ReferenceFace::from_json(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    let modes = reference.space_modes().unwrap();
+    assert_eq!(modes.landmark_base.len(), 68);
+    assert_eq!(modes.landmarks.len(), modes.sigma.len());
+    for (j, (p, e)) in modes.landmark_base.iter().zip(&expected).enumerate() {
+        assert!((p.coords - e).norm() < 1e-6, "landmark {j}: {p} against {e}");
+    }
+}
+
 /// A displacement field as a function of a vertex's position.
 type Field = fn(&Point3<f64>) -> Vector3<f64>;
 
@@ -776,6 +827,7 @@ fn varied_scan(a: f64, b: f64) -> ReferenceScan {
             .iter()
             .map(|p| Point3::new(p.x, p.y, p.z + change(p)))
             .collect(),
+        landmarks: None,
         source: source("varied"),
     }
 }
@@ -853,6 +905,108 @@ fn a_face_space_learnt_from_scans_holds_each_scan() {
     ));
 }
 
+/// [`varied_scan`] with 68 iBUG landmarks: the embedded space's, lifted onto the scan's
+/// heights, its structure made from them.
+fn varied_scan_with_landmarks(a: f64, b: f64) -> ReferenceScan {
+    let scan = varied_scan(a, b);
+    let change = |p: &Point3<f64>| a * 4.0 * (p.x / 40.0).powi(2) + b * 3.0 * ((p.y + 40.0) / 40.0).powi(2);
+    let ibug: Vec<Point3<f64>> = ReferenceFace::embedded()
+        .space_modes()
+        .expect("the embedded reference has a face space")
+        .landmark_base
+        .iter()
+        .map(|p| {
+            let on = Point3::new(p.x, p.y, height(p.x, p.y));
+            Point3::new(on.x, on.y, on.z + change(&on))
+        })
+        .collect();
+    ReferenceScan {
+        structure: from_ibug68(&ibug).unwrap(),
+        landmarks: Some(ibug),
+        ..scan
+    }
+}
+
+#[test]
+fn a_face_space_learnt_from_scans_moves_their_68_landmarks() {
+    let shapes = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, -1.0)];
+    let scans: Vec<ReferenceScan> = shapes
+        .iter()
+        .map(|&(a, b)| varied_scan_with_landmarks(a, b))
+        .collect();
+    let options = ReferenceOptions {
+        grid: 12,
+        ..ReferenceOptions::default()
+    };
+    let reference = build_reference_with_space(&scans, &options, "test").unwrap();
+    // Each scan's landmarks in its canonical frame (the frame its structure gives it).
+    let canonical: Vec<Vec<Point3<f64>>> = scans
+        .iter()
+        .map(|scan| {
+            let (to_canonical, _) = splineface::structure::unify(&scan.structure).unwrap();
+            scan.landmarks
+                .as_ref()
+                .unwrap()
+                .iter()
+                .map(|p| to_canonical * p)
+                .collect()
+        })
+        .collect();
+    let modes = reference.space_modes().unwrap();
+    assert_eq!(modes.landmarks.len(), modes.sigma.len());
+    // The base is the scans' mean.
+    for (j, p) in modes.landmark_base.iter().enumerate() {
+        let mean = canonical.iter().map(|l| l[j].coords).sum::<Vector3<f64>>() / scans.len() as f64;
+        assert!(
+            (p.coords - mean).norm() < 1e-9,
+            "landmark {j}: {p} against the mean {mean}"
+        );
+    }
+    // The weights that give a scan's structure give its landmarks (the modes are one set of
+    // coefficients over the scans), in memory and through the file (`f32`).
+    let reread = ReferenceFace::from_json(&reference.to_json()).unwrap();
+    for (which, tolerance) in [(&reference, 1e-6), (&reread, 1e-3)] {
+        let space = which.face_space().unwrap();
+        assert!(space.carries_landmarks());
+        for (scan, landmarks) in scans.iter().zip(&canonical) {
+            let (_, structure) = splineface::structure::unify(&scan.structure).unwrap();
+            let fit = space.fit_structure(&structure, &[1.0; 40], 1e-4).unwrap();
+            let member = space.landmarks(&fit.weights, &[]).unwrap().unwrap();
+            let worst = member
+                .iter()
+                .zip(landmarks)
+                .map(|(p, q)| (p - q).norm())
+                .fold(0.0, f64::max);
+            assert!(
+                worst < tolerance,
+                "a scan's landmarks lie {worst} units from its member's"
+            );
+        }
+    }
+    // Only when every scan has them.
+    let mut mixed = scans.clone();
+    mixed[2].landmarks = None;
+    let without = build_reference_with_space(&mixed, &options, "test").unwrap();
+    assert!(without.space_modes().unwrap().landmark_base.is_empty());
+    assert!(!without.face_space().unwrap().carries_landmarks());
+    // A scan's landmarks must be 68 finite points.
+    let mut short = scans.clone();
+    short[1].landmarks.as_mut().unwrap().pop();
+    let mut broken = scans;
+    broken[3].landmarks.as_mut().unwrap()[5].z = f64::NAN;
+    for (bad, scan, what) in [
+        (short, 1, "expected 68 points, got 67"),
+        (broken, 3, "point 5 is not finite"),
+    ] {
+        let error = build_reference_with_space(&bad, &options, "test").unwrap_err();
+        assert!(
+            matches!(error, ReferenceError::Structure { scan: k, .. } if k == scan),
+            "{error:?}"
+        );
+        assert!(error.to_string().contains(what), "{error}");
+    }
+}
+
 #[test]
 #[ignore = "needs ../shared/data/ict-face (not part of the repository)"]
 fn the_ict_mean_face_is_fitted_within_the_accepted_residual() {
@@ -863,6 +1017,7 @@ fn the_ict_mean_face_is_fitted_within_the_accepted_residual() {
     let scan = ReferenceScan {
         structure: from_ibug68(&ibug).unwrap(),
         mesh,
+        landmarks: None,
         source: source("neutral_face.obj"),
     };
     let reference = build_reference(&[scan], &ReferenceOptions::default(), "").unwrap();

@@ -129,6 +129,8 @@ pub(crate) struct FitReferenceArgs {
     pub(crate) modes_note: String,
     /// Learn a face space from the scans themselves (three or more): the principal
     /// components of their own fitted grids, each scan a sample of the faces it stands for.
+    /// When every scan's landmark file gives the 68 iBUG points (vertex indices, or an
+    /// `ibug68` JSON file), the space moves them too.
     #[arg(long, conflicts_with = "identity_modes")]
     pub(crate) space_from_scans: bool,
 }

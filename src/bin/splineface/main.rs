@@ -420,9 +420,14 @@ fn fit_reference(a: &FitReferenceArgs) -> Result<()> {
     );
     if let Some(space) = reference.space_modes() {
         println!(
-            "  face space     {} identity and {} expression modes",
+            "  face space     {} identity and {} expression modes{}",
             space.sigma.len(),
-            space.expressions.len()
+            space.expressions.len(),
+            if space.landmark_base.is_empty() {
+                ""
+            } else {
+                ", moving the 68 landmarks"
+            }
         );
     }
     println!("  time           {:.0} ms", elapsed.as_secs_f64() * 1e3);
