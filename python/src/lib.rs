@@ -813,50 +813,108 @@ fn read_reference(path: Option<&std::path::Path>) -> PyResult<ReferenceFace> {
     }
 }
 
-/// The pipeline's options from `reconstruct`'s keyword settings (those of
-/// [`splineface::pipeline::Settings`], the command line's flags), unknown keywords refused.
+/// A keyword setting's reader: stores the value in the settings, or says what it should be.
+type Setter = for<'py> fn(&mut Settings, &Bound<'py, PyAny>) -> Result<(), &'static str>;
+
+fn text(v: &Bound<'_, PyAny>) -> Result<String, &'static str> {
+    v.extract().map_err(|_| "a string")
+}
+
+fn number(v: &Bound<'_, PyAny>) -> Result<f64, &'static str> {
+    v.extract().map_err(|_| "a number")
+}
+
+fn flag(v: &Bound<'_, PyAny>) -> Result<bool, &'static str> {
+    v.extract().map_err(|_| "True or False")
+}
+
+fn count(v: &Bound<'_, PyAny>) -> Result<usize, &'static str> {
+    v.extract().map_err(|_| "a whole number, 0 or more")
+}
+
+/// `reconstruct`'s keyword settings (those of [`splineface::pipeline::Settings`], the command
+/// line's flags), each with its reader; the refusal of an unknown keyword lists them from here.
+const SETTINGS: &[(&str, Setter)] = &[
+    ("units", |s, v| {
+        s.units = text(v)?;
+        Ok(())
+    }),
+    ("eye_distance", |s, v| {
+        s.eye_distance = number(v)?;
+        Ok(())
+    }),
+    ("shape", |s, v| {
+        s.shape = text(v)?;
+        Ok(())
+    }),
+    ("space_noise", |s, v| {
+        s.space_noise = number(v)?;
+        Ok(())
+    }),
+    ("expression_sigma", |s, v| {
+        s.expression_sigma = number(v)?;
+        Ok(())
+    }),
+    ("expressions", |s, v| {
+        s.expressions = flag(v)?;
+        Ok(())
+    }),
+    ("outline", |s, v| {
+        s.outline = flag(v)?;
+        Ok(())
+    }),
+    ("lips", |s, v| {
+        s.lips = flag(v)?;
+        Ok(())
+    }),
+    ("refine", |s, v| {
+        s.refine = flag(v)?;
+        Ok(())
+    }),
+    ("displacement", |s, v| {
+        s.displacement = flag(v)?;
+        Ok(())
+    }),
+    ("deformation", |s, v| {
+        s.deformation = text(v)?;
+        Ok(())
+    }),
+    ("spacing", |s, v| {
+        s.spacing = number(v)?;
+        Ok(())
+    }),
+    ("depth_size", |s, v| {
+        s.depth_size = count(v)?;
+        Ok(())
+    }),
+    ("texture_size", |s, v| {
+        s.texture_size = if v.is_none() {
+            None
+        } else {
+            Some(u32::try_from(count(v)?).map_err(|_| "at most 8192")?)
+        };
+        Ok(())
+    }),
+    ("min_photos", |s, v| {
+        s.min_photos = count(v)?;
+        Ok(())
+    }),
+];
+
+/// The pipeline's options from `reconstruct`'s keyword settings ([`SETTINGS`]), unknown
+/// keywords refused.
 fn options_of(settings: Option<&Bound<'_, PyDict>>) -> PyResult<splineface::pipeline::PipelineOptions> {
     let mut s = Settings::default();
     for (key, value) in settings.into_iter().flat_map(|d| d.iter()) {
         let key: String = key.extract()?;
-        let wrong = |what: &str| PyTypeError::new_err(format!("{key}: expected {what}"));
-        let text = |v: &Bound<'_, PyAny>| v.extract::<String>().map_err(|_| wrong("a string"));
-        let number = |v: &Bound<'_, PyAny>| v.extract::<f64>().map_err(|_| wrong("a number"));
-        let flag = |v: &Bound<'_, PyAny>| v.extract::<bool>().map_err(|_| wrong("True or False"));
-        let count = |v: &Bound<'_, PyAny>| {
-            v.extract::<usize>()
-                .map_err(|_| wrong("a whole number, 0 or more"))
+        let Some((_, set)) = SETTINGS.iter().find(|(name, _)| *name == key) else {
+            let names: Vec<&str> = SETTINGS.iter().map(|(name, _)| *name).collect();
+            return Err(PyTypeError::new_err(format!(
+                "unexpected keyword argument '{key}' (the settings are {})",
+                names.join(", ")
+            )));
         };
-        match key.as_str() {
-            "units" => s.units = text(&value)?,
-            "eye_distance" => s.eye_distance = number(&value)?,
-            "shape" => s.shape = text(&value)?,
-            "space_noise" => s.space_noise = number(&value)?,
-            "expression_sigma" => s.expression_sigma = number(&value)?,
-            "expressions" => s.expressions = flag(&value)?,
-            "outline" => s.outline = flag(&value)?,
-            "lips" => s.lips = flag(&value)?,
-            "refine" => s.refine = flag(&value)?,
-            "displacement" => s.displacement = flag(&value)?,
-            "deformation" => s.deformation = text(&value)?,
-            "spacing" => s.spacing = number(&value)?,
-            "depth_size" => s.depth_size = count(&value)?,
-            "texture_size" => {
-                s.texture_size = if value.is_none() {
-                    None
-                } else {
-                    Some(u32::try_from(count(&value)?).map_err(|_| wrong("at most 8192"))?)
-                };
-            }
-            "min_photos" => s.min_photos = count(&value)?,
-            _ => {
-                return Err(PyTypeError::new_err(format!(
-                    "unexpected keyword argument '{key}' (the settings are units, eye_distance, shape, \
-                     space_noise, expression_sigma, expressions, outline, lips, refine, displacement, deformation, \
-                     spacing, depth_size, texture_size, min_photos)"
-                )));
-            }
-        }
+        set(&mut s, &value).map_err(|what| PyTypeError::new_err(format!("{key}: expected {what}")))?;
     }
     s.options().map_err(|e| setting_error(&e))
 }

@@ -1,5 +1,6 @@
 """reconstruct, Reconstruction and Landmarker from Python: what the command line gives, as arrays."""
 
+import ast
 import json
 import pathlib
 
@@ -165,8 +166,14 @@ def test_reconstruct_takes_a_loaded_landmarker(landmarker, lps_photos):
 
 
 def test_unknown_and_mistyped_settings_are_refused(demo_photos):
-    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'"):
+    with pytest.raises(TypeError, match="unexpected keyword argument 'colour'") as refused:
         splineface.reconstruct(landmarks=demo_photos, colour=True)
+    # The refusal lists the settings the binding reads, which are those the stub declares.
+    listed = str(refused.value).split("(the settings are ", 1)[1].rstrip(")").split(", ")
+    stub = ast.parse((pathlib.Path(splineface.__file__).parent / "__init__.pyi").read_text())
+    settings = next(c for c in stub.body if isinstance(c, ast.ClassDef) and c.name == "_Settings")
+    declared = [a.target.id for a in settings.body if isinstance(a, ast.AnnAssign)]
+    assert listed == declared
     with pytest.raises(TypeError, match="refine: expected True or False"):
         splineface.reconstruct(landmarks=demo_photos, refine="yes")
     with pytest.raises(TypeError, match="outline: expected True or False"):

@@ -136,6 +136,22 @@ pub enum FaceError {
     Space(String),
 }
 
+impl FaceError {
+    /// `Err(`[`FaceError::Option`]`)`: the option `name` has `value`; `expected` says what it
+    /// must be. The options' checks share it.
+    pub(crate) fn option<T>(
+        name: &'static str,
+        value: impl std::fmt::Display,
+        expected: &'static str,
+    ) -> Result<T, Self> {
+        Err(FaceError::Option {
+            name,
+            value: value.to_string(),
+            expected,
+        })
+    }
+}
+
 /// How well a deformed surface follows the structure it was deformed to.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DeformationReport {

@@ -3074,15 +3074,8 @@ fn check_refine(
     views: &[RefineView<'_>],
     options: &RefineOptions,
 ) -> Result<(), FaceError> {
-    let bad = |name: &'static str, value: String, expected: &'static str| {
-        Err(FaceError::Option {
-            name,
-            value,
-            expected,
-        })
-    };
     if views.len() != fit.poses.len() || views.iter().any(|v| v.points.len() != POINT_COUNT) {
-        return bad(
+        return FaceError::option(
             "views",
             views.len().to_string(),
             "one per photo of the fit, 40 points each",
@@ -3090,10 +3083,10 @@ fn check_refine(
     }
     let positive = |v: Real| v > 0.0 && v.is_finite();
     if !(1..=6).contains(&options.levels) {
-        return bad("levels", options.levels.to_string(), "1 to 6");
+        return FaceError::option("levels", options.levels.to_string(), "1 to 6");
     }
     if options.field_levels == 0 {
-        return bad("field levels", "0".into(), "at least 1");
+        return FaceError::option("field levels", "0", "at least 1");
     }
     for (name, v) in [
         ("eye pixels", options.eye_pixels),
@@ -3106,12 +3099,12 @@ fn check_refine(
         ("field sigma", options.field_sigma),
     ] {
         if !positive(v) {
-            return bad(name, v.to_string(), "positive and finite");
+            return FaceError::option(name, v.to_string(), "positive and finite");
         }
     }
     for (name, v) in [("min gain", options.min_gain), ("full gain", options.full_gain)] {
         if v.is_nan() {
-            return bad(name, v.to_string(), "a number (infinite allowed)");
+            return FaceError::option(name, v.to_string(), "a number (infinite allowed)");
         }
     }
     Ok(())

@@ -1023,30 +1023,23 @@ fn check_photo_fit(
     point_weights: &[Real; POINT_COUNT],
     options: &PhotoFitOptions,
 ) -> Result<(Real, Real), FaceError> {
-    let bad = |name: &'static str, value: String, expected: &'static str| {
-        Err(FaceError::Option {
-            name,
-            value,
-            expected,
-        })
-    };
     if views.is_empty() {
-        return bad("views", "none".into(), "at least one photo");
+        return FaceError::option("views", "none", "at least one photo");
     }
     if let Some(i) = views
         .iter()
         .position(|v| v.len() != POINT_COUNT || v.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())))
     {
-        return bad("view", i.to_string(), "40 finite points");
+        return FaceError::option("view", i.to_string(), "40 finite points");
     }
     let noise = options.noise;
     if !(noise > 0.0 && noise.is_finite()) {
-        return bad("noise", noise.to_string(), "positive and finite");
+        return FaceError::option("noise", noise.to_string(), "positive and finite");
     }
     if let Some(prior) = options.expressions {
         let positive = |x: Real| x > 0.0 && x.is_finite();
         if !positive(prior.sigma) {
-            return bad(
+            return FaceError::option(
                 "expression deviation",
                 prior.sigma.to_string(),
                 "positive and finite",
@@ -1055,14 +1048,14 @@ fn check_photo_fit(
         if let Some(shared) = prior.shared_sigma
             && !positive(shared)
         {
-            return bad(
+            return FaceError::option(
                 "shared expression deviation",
                 shared.to_string(),
                 "positive and finite",
             );
         }
         if !(prior.rate >= 0.0 && prior.rate.is_finite()) {
-            return bad(
+            return FaceError::option(
                 "expression rate",
                 prior.rate.to_string(),
                 "non-negative and finite",
@@ -1071,7 +1064,7 @@ fn check_photo_fit(
     }
     let total: Real = point_weights.iter().sum();
     if point_weights.iter().any(|w| !(w.is_finite() && *w >= 0.0)) || total <= 0.0 {
-        return bad(
+        return FaceError::option(
             "point weight",
             format!("{point_weights:?}"),
             "finite, non-negative, not all zero",
@@ -1079,10 +1072,10 @@ fn check_photo_fit(
     }
     let weight = options.lips;
     if !(weight >= 0.0 && weight.is_finite()) {
-        return bad("lip weight", weight.to_string(), "non-negative and finite");
+        return FaceError::option("lip weight", weight.to_string(), "non-negative and finite");
     }
     if !lips.is_empty() && lips.len() != views.len() {
-        return bad(
+        return FaceError::option(
             "lip gaps",
             format!("{} for {} views", lips.len(), views.len()),
             "none, or one entry per view",
@@ -1092,7 +1085,7 @@ fn check_photo_fit(
         .iter()
         .position(|g| g.is_some_and(|g| !g.iter().all(|v| v.x.is_finite() && v.y.is_finite())))
     {
-        return bad("lip gaps", format!("view {i}"), "finite");
+        return FaceError::option("lip gaps", format!("view {i}"), "finite");
     }
     Ok((noise, total))
 }
@@ -1739,21 +1732,14 @@ impl Default for DenseFitOptions {
 
 impl DenseFitOptions {
     fn validate(&self) -> Result<(), FaceError> {
-        let bad = |name, value: Real, expected| {
-            Err(FaceError::Option {
-                name,
-                value: value.to_string(),
-                expected,
-            })
-        };
         if !(self.spacing > 0.0 && self.spacing.is_finite()) {
-            return bad("spacing", self.spacing, "positive and finite");
+            return FaceError::option("spacing", self.spacing, "positive and finite");
         }
         if !(0.0..0.9).contains(&self.trim) {
-            return bad("trim", self.trim, "in [0, 0.9)");
+            return FaceError::option("trim", self.trim, "in [0, 0.9)");
         }
         if !(self.noise > 0.0 && self.noise.is_finite()) {
-            return bad("noise", self.noise, "positive and finite");
+            return FaceError::option("noise", self.noise, "positive and finite");
         }
         Ok(())
     }
