@@ -1192,6 +1192,53 @@ impl ReferenceFace {
         Ok(self)
     }
 
+    /// The same reference over a finer control grid: the knots `values` added along
+    /// `direction` to its surface and to every mode of its face space, identity and expression
+    /// alike ([`crate::bspline::SurfaceSpace::refine_knots`]). Every face it describes is the
+    /// same surface as before (to the `f32` the modes are stored at); what changes is where a
+    /// displacement of the control grid can act: a refinement's field
+    /// ([`crate::face::RefineOptions::field`]) gets finer detail where the knots were added.
+    ///
+    /// # Errors
+    /// [`ReferenceError::Fit`] as [`BSplineSurface::refine_knots`]: a value outside `[0, 1]`
+    /// or a knot that would appear more than three times.
+    pub fn refine_knots(
+        &self,
+        direction: crate::bspline::Direction,
+        values: &[Real],
+    ) -> Result<Self, ReferenceError> {
+        let refine = |grid: &[Vector3<Real>]| -> Result<Vec<Vector3<Real>>, BSplineError> {
+            let surface = self
+                .surface
+                .with_control_points(grid.iter().map(|d| Point3::from(*d)).collect())?;
+            let refined = surface.refine_knots(direction, values)?;
+            Ok(refined.control_points().iter().map(|p| p.coords).collect())
+        };
+        let surface = self.surface.refine_knots(direction, values)?;
+        let space = match &self.space {
+            None => None,
+            Some(modes) => {
+                let grids = |grids: &[Vec<Vector3<Real>>]| -> Result<Vec<_>, BSplineError> {
+                    grids.iter().map(|g| refine(g)).collect()
+                };
+                Some(SpaceModes {
+                    grid: grids(&modes.grid)?,
+                    expressions: ExpressionModes {
+                        grid: grids(&modes.expressions.grid)?,
+                        ..modes.expressions.clone()
+                    },
+                    ..modes.clone()
+                })
+            }
+        };
+        let refined = ReferenceFace {
+            surface,
+            space: None,
+            ..self.clone()
+        };
+        refined.with_space(space)
+    }
+
     /// The reference the photo stages use: [`ReferenceFace::photo_structure`] as its structure
     /// (a copy when the two differ).
     pub fn as_seen_in_photos(&self) -> std::borrow::Cow<'_, ReferenceFace> {

@@ -269,6 +269,42 @@ impl SurfaceSpace {
             .expect("a validated mode on the base's knots")
     }
 
+    /// The same space over a finer layout: the knots `values` added along `direction` to the
+    /// base and to every mode ([`BSplineSurface::refine_knots`]). Knot insertion is linear in
+    /// the control grid, so each mode's displacement grid is refined as a surface of its own on
+    /// the base's knots, and `refine_knots(d, x).surface(w)` is `surface(w).refine_knots(d, x)`
+    /// for every `w`: the same surfaces, each with more control points (where a finer
+    /// displacement on top of them, such as a refinement's detail, can act).
+    ///
+    /// # Errors
+    /// As [`BSplineSurface::refine_knots`].
+    ///
+    /// ```
+    /// use nalgebra::{Point3, Vector3};
+    /// use splineface::bspline::{BSplineSurface, Direction, KnotVector, SurfaceSpace};
+    ///
+    /// let k = KnotVector::clamped_uniform(3, 5, 0.0, 1.0)?;
+    /// let grid = (0..25).map(|i| Point3::new((i / 5) as f64, (i % 5) as f64, 0.0)).collect();
+    /// let base = BSplineSurface::new(k.clone(), k, 5, 5, grid)?;
+    /// let lift = (0..25).map(|i| Vector3::z() * ((i * 7) % 3) as f64).collect();
+    /// let space = SurfaceSpace::new(base, vec![lift])?;
+    /// let finer = space.refine_knots(Direction::U, &[0.3, 0.6])?;
+    /// assert_eq!((finer.base().rows(), finer.mode(0).len()), (7, 35));
+    /// let (a, b) = (space.surface(&[1.5])?.eval(0.4, 0.7)?, finer.surface(&[1.5])?.eval(0.4, 0.7)?);
+    /// assert!((a - b).norm() < 1e-12);
+    /// # Ok::<(), splineface::bspline::BSplineError>(())
+    /// ```
+    pub fn refine_knots(&self, direction: super::Direction, values: &[Real]) -> Result<Self, BSplineError> {
+        let base = self.base.refine_knots(direction, values)?;
+        let modes = (0..self.modes.len())
+            .map(|k| {
+                let refined = self.mode_surface(k).refine_knots(direction, values)?;
+                Ok(refined.control_points().iter().map(|d| d.coords).collect())
+            })
+            .collect::<Result<_, BSplineError>>()?;
+        Ok(SurfaceSpace { base, modes })
+    }
+
     /// The space mapped by an affine transform: base `A B₀ + t`, modes `A ΔBₖ`, so that
     /// `transformed(A).surface(w) = surface(w).transformed(A)` for every `w`.
     pub fn transformed(&self, affine: &Affine3<Real>) -> Self {

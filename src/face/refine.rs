@@ -191,6 +191,26 @@ pub struct RefineOptions {
     /// 0.853 of the landmark fit, 12 sets more than 2% worse (the worst 1.44): the field then
     /// bends the surface to explain the light (shadows, sheen) instead of the photos'
     /// agreement.
+    ///
+    /// A finer grid for the field was measured and dropped too: the reference and its space
+    /// refined by knot insertion ([`ReferenceFace::refine_knots`]: the same faces, more
+    /// control points) before the pipeline runs, one knot in the middle of every span of the
+    /// inner face (`u` 0.2–0.8, `v` 0.15–0.78: 49 × 49 control points) or of every span (61 ×
+    /// 61); `photo_eval --methods "refine finer inner,refine finer all"` and `"refine finer
+    /// inner bend 0.75"` (the bend's deviation scaled to the halved spacing), the 105 sets
+    /// against the committed `tools/results/photos.md`:
+    ///
+    /// | grid | 2 | 3 | 4 | 8 | 16 | mean | to the landmark fit | worse | the scan's 15 sets | photos-8 |
+    /// |---|---|---|---|---|---|---|---|---|---|---|
+    /// | **32 × 32** | 0.78 | 0.72 | 0.70 | 0.66 | 0.62 | 0.694 | 0.773 | 4 | 0.834 | 0.83 |
+    /// | inner face 49 × 49 | 0.79 | 0.72 | 0.70 | 0.68 | 0.63 | 0.702 | 0.781 | 5 | 0.828 | 0.86 |
+    /// | the same, bend 0.75 | 0.79 | 0.72 | 0.70 | 0.70 | 0.64 | 0.709 | 0.789 | 5 | 0.831 | 0.88 |
+    /// | every span 61 × 61 | 0.78 | 0.72 | 0.70 | 0.68 | 0.64 | 0.703 | 0.783 | 6 | 0.832 | 0.87 |
+    ///
+    /// More freedom where the photos are compared lets the field follow more of what the lit
+    /// measure cannot explain; the grid is not what limits the refinement (its measure is,
+    /// `tools/results/from-truth-lit.md`), so knots are not added where the photos disagree
+    /// either.
     pub field: bool,
     /// At how many of the finest levels the field is fitted (at least 1; more than
     /// [`RefineOptions::levels`] means every level), from zero where it joins; the coarser

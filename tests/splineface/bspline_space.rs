@@ -2,7 +2,7 @@
 
 use nalgebra::{Affine3, Matrix4, Point3, Vector3};
 use proptest::prelude::*;
-use splineface::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceSpace};
+use splineface::bspline::{BSplineError, BSplineSurface, Direction, KnotVector, SurfaceSpace};
 
 use crate::common::{Lcg, random_surface, surface};
 
@@ -73,6 +73,45 @@ proptest! {
             let lhs = mapped.eval(u, v).unwrap();
             let rhs = a * member.eval(u, v).unwrap();
             prop_assert!((lhs - rhs).norm() < 1e-9 * (1.0 + rhs.coords.norm()));
+        }
+    }
+
+    /// Refining the space's knots refines every member: the same surface, more control
+    /// points, for any knots, direction and weights.
+    #[test]
+    fn refining_the_space_refines_every_member(
+        base in surface(),
+        seed in any::<u64>(),
+        along_u in any::<bool>(),
+        at in proptest::collection::vec(0.0f64..1.0, 1..4),
+    ) {
+        let space = SurfaceSpace::new(base.clone(), random_modes(&base, 3, seed)).unwrap();
+        let direction = if along_u { Direction::U } else { Direction::V };
+        let (lo, hi) = if along_u { base.domain_u() } else { base.domain_v() };
+        let values: Vec<f64> = at.iter().map(|a| lo + a * (hi - lo)).collect();
+        // A value may meet a knot already there too often; the space refuses it as the
+        // surface does.
+        let finer = match (space.refine_knots(direction, &values), base.refine_knots(direction, &values)) {
+            (Ok(finer), Ok(surface)) => {
+                prop_assert_eq!(finer.base(), &surface);
+                finer
+            }
+            (Err(a), Err(b)) => {
+                prop_assert_eq!(a, b);
+                return Ok(());
+            }
+            (a, b) => panic!("the space and its base disagree: {a:?} against {b:?}"),
+        };
+        let added = values.len();
+        let (rows, cols) = if along_u { (base.rows() + added, base.cols()) } else { (base.rows(), base.cols() + added) };
+        prop_assert_eq!((finer.base().rows(), finer.base().cols()), (rows, cols));
+        prop_assert!(finer.modes().iter().all(|m| m.len() == rows * cols));
+        let mut rng = Lcg(seed ^ 11);
+        let weights = [rng.gaussian(), rng.gaussian(), rng.gaussian()];
+        let (member, refined) = (space.surface(&weights).unwrap(), finer.surface(&weights).unwrap());
+        for [u, v] in lattice(&base, 6) {
+            let (a, b) = (member.eval(u, v).unwrap(), refined.eval(u, v).unwrap());
+            prop_assert!((a - b).norm() < 1e-9 * (1.0 + a.coords.norm()), "{a} vs {b}");
         }
     }
 

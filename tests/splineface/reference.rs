@@ -292,6 +292,41 @@ fn the_embedded_space_carries_ictfacekits_expressions() {
 }
 
 #[test]
+fn a_refined_reference_describes_the_same_faces_on_a_finer_grid() {
+    use splineface::bspline::Direction;
+    let reference = ReferenceFace::embedded();
+    let finer = reference
+        .refine_knots(Direction::U, &[0.45, 0.5, 0.55])
+        .and_then(|r| r.refine_knots(Direction::V, &[0.3]))
+        .unwrap();
+    assert_eq!((finer.surface().rows(), finer.surface().cols()), (35, 33));
+    let (space, fine_space) = (reference.face_space().unwrap(), finer.face_space().unwrap());
+    // A member with an expression: the identity and expression grids are both refined. The
+    // modes are stored at f32, so the refined ones are within its rounding (canonical units,
+    // the face about 200 across).
+    let mut rng = crate::common::Lcg(3);
+    let w: Vec<f64> = (0..space.mode_count()).map(|_| rng.gaussian()).collect();
+    let mut e = vec![0.0; space.expressions().len()];
+    e[0] = 0.8;
+    e[20] = 0.5;
+    let a = space.face_with_expression(reference, &w, &e).unwrap();
+    let b = fine_space.face_with_expression(&finer, &w, &e).unwrap();
+    let mut largest: f64 = 0.0;
+    for i in 0..=20 {
+        for j in 0..=20 {
+            let (u, v) = (i as f64 / 20.0, j as f64 / 20.0);
+            let (p, q) = (a.surface().eval(u, v).unwrap(), b.surface().eval(u, v).unwrap());
+            largest = largest.max((p - q).norm());
+        }
+    }
+    assert!(largest < 1e-5, "{largest}");
+    assert_eq!(space.structure(&w).unwrap(), fine_space.structure(&w).unwrap());
+    // A knot a fourth time, or outside the domain, is refused.
+    assert!(finer.refine_knots(Direction::U, &[0.5, 0.5, 0.5]).is_err());
+    assert!(reference.refine_knots(Direction::V, &[1.5]).is_err());
+}
+
+#[test]
 fn malformed_references_are_refused() {
     let text = ReferenceFace::embedded().to_json();
     let mut value: serde_json::Value = serde_json::from_str(&text).unwrap();

@@ -1141,6 +1141,9 @@ struct Method {
     name: &'static str,
     options: PipelineOptions,
     vertex_structure: bool,
+    /// Knots added to the reference's grid (and its space) inside these `(u, v)` bounds, one
+    /// in the middle of every span there, before the pipeline runs.
+    finer: Option<[Real; 4]>,
 }
 
 impl Method {
@@ -1153,6 +1156,25 @@ impl Method {
         let mut chosen = space_cut(reference, space_modes)?;
         if self.vertex_structure {
             chosen = chosen.with_photo_structure(None).map_err(anyhow::Error::msg)?;
+        }
+        if let Some([u0, u1, v0, v1]) = self.finer {
+            use splineface::bspline::Direction;
+            let middles = |knots: &[Real], lo: Real, hi: Real| -> Vec<Real> {
+                knots
+                    .windows(2)
+                    .filter(|k| k[1] > k[0] && k[0] >= lo - 1e-9 && k[1] <= hi + 1e-9)
+                    .map(|k| 0.5 * (k[0] + k[1]))
+                    .collect()
+            };
+            let surface = chosen.surface();
+            let (us, vs) = (
+                middles(surface.knots_u().knots(), u0, u1),
+                middles(surface.knots_v().knots(), v0, v1),
+            );
+            chosen = chosen
+                .refine_knots(Direction::U, &us)
+                .and_then(|r| r.refine_knots(Direction::V, &vs))
+                .map_err(anyhow::Error::msg)?;
         }
         Ok(chosen)
     }
@@ -1564,6 +1586,7 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         name,
         options,
         vertex_structure: false,
+        finer: None,
     };
     let space = |noise, expressions| Shape::Space {
         noise,
@@ -1733,6 +1756,28 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("refine field sigma 3", refined_with(&|o| o.field_sigma = 3.0)),
         method("refine field sigma 30", refined_with(&|o| o.field_sigma = 30.0)),
         method("refine no field", refined_with(&|o| o.field = false)),
+        Method {
+            finer: Some([0.2, 0.8, 0.15, 0.78]),
+            ..method("refine finer inner", default)
+        },
+        Method {
+            finer: Some([0.2, 0.8, 0.15, 0.78]),
+            ..method(
+                "refine finer inner bend 0.75",
+                refined_with(&|o| o.field_bend = 0.75),
+            )
+        },
+        Method {
+            finer: Some([0.0, 1.0, 0.0, 1.0]),
+            ..method("refine finer all", default)
+        },
+        Method {
+            finer: Some([0.0, 1.0, 0.0, 1.0]),
+            ..method(
+                "refine finer all bend 0.75",
+                refined_with(&|o| o.field_bend = 0.75),
+            )
+        },
         method(
             "refine field ungated",
             refined_with(&|o| {
