@@ -59,7 +59,7 @@ use nalgebra::{Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::Real;
-use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit};
+use crate::bspline::{BSplineError, BSplineSurface, KnotVector, SurfaceFit, SurfaceSpace};
 use crate::geometry::{bounding_box, polygon_contains};
 use crate::mesh::{Raster, TriangleMesh, front_heights};
 use crate::structure::{self, IBUG_POINT_COUNT, POINT_COUNT, StructureError, delaunay_edges, unify};
@@ -1207,29 +1207,22 @@ impl ReferenceFace {
         direction: crate::bspline::Direction,
         values: &[Real],
     ) -> Result<Self, ReferenceError> {
-        let refine = |grid: &[Vector3<Real>]| -> Result<Vec<Vector3<Real>>, BSplineError> {
-            let surface = self
-                .surface
-                .with_control_points(grid.iter().map(|d| Point3::from(*d)).collect())?;
-            let refined = surface.refine_knots(direction, values)?;
-            Ok(refined.control_points().iter().map(|p| p.coords).collect())
+        // Each family of modes refined as a space on the reference's surface.
+        let refine = |grids: &[Vec<Vector3<Real>>]| -> Result<Vec<Vec<Vector3<Real>>>, BSplineError> {
+            let space = SurfaceSpace::new(self.surface.clone(), grids.to_vec())?;
+            Ok(space.refine_knots(direction, values)?.modes().to_vec())
         };
         let surface = self.surface.refine_knots(direction, values)?;
         let space = match &self.space {
             None => None,
-            Some(modes) => {
-                let grids = |grids: &[Vec<Vector3<Real>>]| -> Result<Vec<_>, BSplineError> {
-                    grids.iter().map(|g| refine(g)).collect()
-                };
-                Some(SpaceModes {
-                    grid: grids(&modes.grid)?,
-                    expressions: ExpressionModes {
-                        grid: grids(&modes.expressions.grid)?,
-                        ..modes.expressions.clone()
-                    },
-                    ..modes.clone()
-                })
-            }
+            Some(modes) => Some(SpaceModes {
+                grid: refine(&modes.grid)?,
+                expressions: ExpressionModes {
+                    grid: refine(&modes.expressions.grid)?,
+                    ..modes.expressions.clone()
+                },
+                ..modes.clone()
+            }),
         };
         let refined = ReferenceFace {
             surface,

@@ -321,6 +321,9 @@ fn a_refined_reference_describes_the_same_faces_on_a_finer_grid() {
     }
     assert!(largest < 1e-5, "{largest}");
     assert_eq!(space.structure(&w).unwrap(), fine_space.structure(&w).unwrap());
+    // It writes and reads back as it is.
+    let back = ReferenceFace::from_json(&finer.to_json()).unwrap();
+    assert_eq!(&back, &finer);
     // A knot a fourth time, or outside the domain, is refused.
     assert!(finer.refine_knots(Direction::U, &[0.5, 0.5, 0.5]).is_err());
     assert!(reference.refine_knots(Direction::V, &[1.5]).is_err());
