@@ -870,6 +870,14 @@ fn varied_scan(a: f64, b: f64) -> ReferenceScan {
     }
 }
 
+/// The options the learnt spaces' tests build with: a 12 × 12 grid.
+fn grid_12() -> ReferenceOptions {
+    ReferenceOptions {
+        grid: 12,
+        ..ReferenceOptions::default()
+    }
+}
+
 #[test]
 fn a_face_space_learnt_from_scans_holds_each_scan() {
     use splineface::face::DenseFitOptions;
@@ -878,10 +886,7 @@ fn a_face_space_learnt_from_scans_holds_each_scan() {
         .iter()
         .map(|&(a, b)| varied_scan(a, b))
         .collect();
-    let options = ReferenceOptions {
-        grid: 12,
-        ..ReferenceOptions::default()
-    };
+    let options = grid_12();
     let reference = build_reference_with_space(&scans, &options, "test").unwrap();
     let modes = reference.space_modes().unwrap();
     assert!(
@@ -972,10 +977,7 @@ fn a_face_space_learnt_from_scans_moves_their_68_landmarks() {
         .iter()
         .map(|&(a, b)| varied_scan_with_landmarks(a, b))
         .collect();
-    let options = ReferenceOptions {
-        grid: 12,
-        ..ReferenceOptions::default()
-    };
+    let options = grid_12();
     let reference = build_reference_with_space(&scans, &options, "test").unwrap();
     // Each scan's landmarks in its canonical frame (the frame its structure gives it).
     let canonical: Vec<Vec<Point3<f64>>> = scans

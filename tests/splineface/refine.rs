@@ -5,7 +5,8 @@ use splineface::Real;
 use splineface::align::{GreyImage, PhotoPoints};
 use splineface::compare::fit_similarity;
 use splineface::face::{
-    FaceError, FaceSpace, MeshOptions, PhotoFitOptions, PhotoSpaceFit, RefineOptions, RefineView, Window,
+    FaceError, FaceSpace, MeshOptions, PhotoFitOptions, PhotoSpaceFit, RefineOptions, RefineView, Refinement,
+    Window,
 };
 use splineface::mesh::{TextureCoordinates, TriangleMesh};
 use splineface::reference::ReferenceFace;
@@ -230,13 +231,22 @@ fn landmark_fit(scene: &Scene) -> ([Real; 40], PhotoSpaceFit, Vec<RefineView<'_>
     (weights, fit, views)
 }
 
+/// `scene` refined with `options` from its landmark fit.
+fn refined(scene: &Scene, options: &RefineOptions) -> Refinement {
+    let (weights, fit, views) = landmark_fit(scene);
+    scene
+        .space
+        .refine_photos(scene.reference, &fit, &views, &weights, options)
+        .unwrap()
+}
+
 /// Every way of making the photos comparable (the window in the image, the shading divided
 /// out before a window on the surface, and the photos compared with the face lit) pulls the
 /// face toward the member the photos show, each photo lit from another side.
 #[test]
 fn the_photos_pull_the_face_toward_the_member_they_show() {
     let scene = scene(&[1.5, -1.5, 1.0, -1.0, 1.5, 1.0, -1.5, 1.0, 1.0, -1.0, 0.8, -0.8]);
-    let (weights, fit, views) = landmark_fit(&scene);
+    let (_, fit, _) = landmark_fit(&scene);
     let before = shape_distance(&scene, &fit.weights, &scene.truth);
     let mean = shape_distance(&scene, &vec![0.0; scene.truth.len()], &scene.truth);
     for window in [Window::Image, Window::Shaded, Window::Lit] {
@@ -244,10 +254,7 @@ fn the_photos_pull_the_face_toward_the_member_they_show() {
             window,
             ..RefineOptions::default()
         };
-        let refined = scene
-            .space
-            .refine_photos(scene.reference, &fit, &views, &weights, &options)
-            .unwrap();
+        let refined = refined(&scene, &options);
         let after = shape_distance(&scene, &refined.weights, &scene.truth);
         eprintln!(
             "{window:?}: shape distance: mean face {mean:.3}, landmark fit {before:.3}, refined {after:.3}; {}",
@@ -585,18 +592,13 @@ fn the_displacement_field_follows_a_bump_the_space_cannot_express() {
 /// The distance from the truth of `scene`'s refinement under `window`, with or without
 /// [`RefineOptions::photo_weights`].
 fn refined_distance(scene: &Scene, window: Window, photo_weights: bool) -> Real {
-    let (weights, fit, views) = landmark_fit(scene);
     let options = RefineOptions {
         photo_weights,
         min_gain: Real::NEG_INFINITY,
         window,
         ..RefineOptions::default()
     };
-    let refined = scene
-        .space
-        .refine_photos(scene.reference, &fit, &views, &weights, &options)
-        .unwrap();
-    shape_distance(scene, &refined.weights, &scene.truth)
+    shape_distance(scene, &refined(scene, &options).weights, &scene.truth)
 }
 
 /// `scene` with a fourth photo that disagrees with the others for reasons other than shape:
