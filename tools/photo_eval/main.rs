@@ -1594,6 +1594,13 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         outline: true,
         lips: 0.0,
     };
+    // A method on the reference refined inside these (u, v) bounds (`Method::finer`).
+    let finer = |name, bounds, options| Method {
+        finer: Some(bounds),
+        ..method(name, options)
+    };
+    // The inner face's spans in (u, v): the eyes, nose and mouth of the embedded reference.
+    const INNER_SPANS: [Real; 4] = [0.2, 0.8, 0.15, 0.78];
     // The default with the inner-lip gaps at this weight (the default leaves them out).
     let lips = |weight: Real| {
         with(&move |o: &mut PipelineOptions| {
@@ -1756,28 +1763,18 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
         method("refine field sigma 3", refined_with(&|o| o.field_sigma = 3.0)),
         method("refine field sigma 30", refined_with(&|o| o.field_sigma = 30.0)),
         method("refine no field", refined_with(&|o| o.field = false)),
-        Method {
-            finer: Some([0.2, 0.8, 0.15, 0.78]),
-            ..method("refine finer inner", default)
-        },
-        Method {
-            finer: Some([0.2, 0.8, 0.15, 0.78]),
-            ..method(
-                "refine finer inner bend 0.75",
-                refined_with(&|o| o.field_bend = 0.75),
-            )
-        },
-        Method {
-            finer: Some([0.0, 1.0, 0.0, 1.0]),
-            ..method("refine finer all", default)
-        },
-        Method {
-            finer: Some([0.0, 1.0, 0.0, 1.0]),
-            ..method(
-                "refine finer all bend 0.75",
-                refined_with(&|o| o.field_bend = 0.75),
-            )
-        },
+        finer("refine finer inner", INNER_SPANS, default),
+        finer(
+            "refine finer inner bend 0.75",
+            INNER_SPANS,
+            refined_with(&|o| o.field_bend = 0.75),
+        ),
+        finer("refine finer all", [0.0, 1.0, 0.0, 1.0], default),
+        finer(
+            "refine finer all bend 0.75",
+            [0.0, 1.0, 0.0, 1.0],
+            refined_with(&|o| o.field_bend = 0.75),
+        ),
         method(
             "refine field ungated",
             refined_with(&|o| {
