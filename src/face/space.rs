@@ -801,6 +801,16 @@ pub type LipGaps = [Vector2<Real>; 3];
 ///   0.75 / 0.70, 0.74 / 0.68; `r / n` 0.70 / 0.59, 0.74 / 0.67, 0.75 / 0.68; `r / √n`
 ///   0.70 / 0.57, 0.76 / 0.66, 0.76 / 0.67. A smile in 8 photos gains a little and the neutral
 ///   photos lose about as much, so the rate stays per photo.
+/// * Perfect points do not find a whole smile either. The embedded space's own 40 points of
+///   three members drawn with weights ~ N(0, 1), each smiling (`mouthSmile_L` and `_R` at
+///   0.7) or with the jaw open (0.35) in 8 views from −40° to 40°, fitted with this prior
+///   (a temporary test): the smile comes out at 0.34–0.56 with ε = 4 (the pipeline's) and
+///   0.53–0.68 with ε = 0.5, the open jaw at 0.28–0.36. Without the expression prior the 53
+///   blendshapes share the smile out (their weights summing to 10–14 at ε = 4). A shared
+///   expression is told from identity only by the priors: the identity modes and the other
+///   blendshapes explain the 40 points about as cheaply. From dlib's points on rendered
+///   photos the open jaw comes out at 0.20 (`tools/results/expressions.md`): dlib reads less
+///   of it than the points move.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExpressionPrior {
     /// `τ`, each photo's deviation from the shared expression.
