@@ -271,8 +271,10 @@ pub struct RefineOptions {
     /// fitting the lights differ by about the refinement's own sensitivity (a change in the
     /// last bit of its input moves one refinement by several hundredths); three of the four
     /// sets worse than the landmark fit stay so (two of them have two photos, where the
-    /// weights say nothing). Left off: no better on the mean, and not measured on expressive
-    /// photos.
+    /// weights say nothing). On expressive photos (`photo_eval --expressions --seeds 2
+    /// --counts 3,8`; neutral, smile, open jaw, 3 / 8 photos) 0.70 / 0.58, 0.79 / 0.74,
+    /// 0.74 / 0.66 against the default's 0.69 / 0.57, 0.75 / 0.70, 0.74 / 0.68: the smiles
+    /// lose. Left off.
     pub photo_weights: bool,
     /// [`Window::Lit`]: shade each photo over the normals of the face with that photo's
     /// expression (the landmark fit's), rather than over the identity's alone. On by default.
@@ -2029,9 +2031,9 @@ impl Level<'_> {
         // Each photo's light is fitted over its samples at full weight: a photo's weight
         // ([`RefineOptions::photo_weights`]) says how far its intensities are trusted for the
         // shape, and its light is its own either way. Fitted at the photo's weight instead, a
-        // photo counting little has a light the joint fit hardly constrains, and the test's
-        // inverted photo then pulled the face further off than unweighted (2.2 units from the
-        // truth against 1.1; `tests/splineface/refine.rs`).
+        // photo counting little has a light the joint fit hardly constrains, and an inverted
+        // photo then pulled the face further off weighted than unweighted (five faces in
+        // `tests/splineface/refine.rs`: 1.46 units from the truth against 0.91; now 1.00).
         let full: std::borrow::Cow<'_, [Vec<Real>]> = if self.photo_weights.iter().all(|&w| w == 1.0) {
             std::borrow::Cow::Borrowed(visibility)
         } else {
