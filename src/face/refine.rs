@@ -197,8 +197,8 @@ pub struct RefineOptions {
     /// control points) before the pipeline runs, one knot in the middle of every span of the
     /// inner face (`u` 0.2–0.8, `v` 0.15–0.78: 49 × 49 control points) or of every span (61 ×
     /// 61); `photo_eval --methods "refine finer inner,refine finer all"` and `"refine finer
-    /// inner bend 0.75"` (the bend's deviation scaled to the halved spacing), the 105 sets
-    /// against the committed `tools/results/photos.md`:
+    /// inner bend 0.75"` (the bend's deviation scaled to the halved spacing), each with
+    /// `--baseline tools/results/photos.md` (the committed run; the 105 sets set by set):
     ///
     /// | grid | 2 | 3 | 4 | 8 | 16 | mean | to the landmark fit | worse | the scan's 15 sets | photos-8 |
     /// |---|---|---|---|---|---|---|---|---|---|---|
@@ -256,8 +256,8 @@ pub struct RefineOptions {
     /// with three good photos and an inverted fourth (`tests/splineface/refine.rs`) ended 1.46
     /// units from the truth on average weighted (the worst 2.38), 0.91 unweighted; with the
     /// lights at full weight, 1.00 (the worst 1.41). On the main evaluation (`photo_eval
-    /// --methods "refine photo weights"`, the 105 sets against the committed
-    /// `tools/results/photos.md`; mean ratio to the mean face for 2 / 3 / 4 / 8 / 16 photos,
+    /// --methods "refine photo weights" --baseline tools/results/photos.md`, the 105 sets
+    /// set by set against the committed run; mean ratio to the mean face for 2 / 3 / 4 / 8 / 16 photos,
     /// the worst set of each count, the sets more than 2% worse than the landmark fit, the
     /// widest pair of halves of 16 photos):
     ///

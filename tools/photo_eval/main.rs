@@ -12,9 +12,10 @@
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
 //! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]
-//! [--flat-light] [--windows KEYS] [--expressions [--expression-oracle]]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--flat-light] [--windows KEYS] [--expressions [--expression-oracle]] [--baseline PAGE]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
 
+mod baseline;
 #[path = "../common/mod.rs"]
 mod common;
 mod photos;
@@ -69,6 +70,8 @@ struct Args {
     /// `--expression-oracle`: with `--expressions`, refine the first method's sets again with
     /// the true expressions.
     expression_oracle: bool,
+    /// `--baseline`: an earlier run's page to set this run's methods against, set by set.
+    baseline: Option<PathBuf>,
 }
 
 fn parse_args() -> Result<Args> {
@@ -93,6 +96,7 @@ fn parse_args() -> Result<Args> {
         flat_light: false,
         windows: Vec::new(),
         expression_oracle: false,
+        baseline: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -121,6 +125,7 @@ fn parse_args() -> Result<Args> {
             "--from-truth" => args.from_truth = true,
             "--flat-light" => args.flat_light = true,
             "--windows" => args.windows = value()?.split(',').map(|m| m.trim().to_owned()).collect(),
+            "--baseline" => args.baseline = Some(value()?.into()),
             other => bail!("unknown argument {other}"),
         }
     }
@@ -1899,6 +1904,12 @@ fn mean_of(values: impl Iterator<Item = Real>) -> Real {
 fn main() -> Result<()> {
     let args = parse_args()?;
     let started = std::time::Instant::now();
+    // Read before the long run, so that a bad page fails at once.
+    let baseline = args
+        .baseline
+        .as_deref()
+        .map(baseline::Baseline::read)
+        .transpose()?;
     let shared = args.data.join("../..");
     let model = ShapePredictor::read(&args.model)?;
     let reference = ReferenceFace::embedded();
@@ -2155,6 +2166,22 @@ fn main() -> Result<()> {
             }
         }
         writeln!(page)?;
+    }
+
+    if let (Some(baseline), Some(path)) = (&baseline, &args.baseline) {
+        let runs: Vec<baseline::Run<'_>> = methods
+            .iter()
+            .zip(&results)
+            .map(|(m, outcomes)| {
+                let sets = sets
+                    .iter()
+                    .zip(outcomes)
+                    .map(|(s, o)| (s.label.as_str(), ratio(s, o)))
+                    .collect();
+                (m.name, sets)
+            })
+            .collect();
+        page.push_str(&baseline.section(path, &runs)?);
     }
 
     // Self-consistency: two disjoint halves of 16 photos.
