@@ -6,7 +6,10 @@ use nalgebra::{Point3, Vector3};
 use super::TriangleMesh;
 use crate::Real;
 
-/// Triangles per leaf at most.
+/// Triangles per leaf at most. Leaves of 2 and 8 answered 1.12 and 1.22 M near-surface queries
+/// a second on one core against 1.20 M with 4 (`cargo bench --bench render -- "0.2
+/// mm/ClosestPoints::closest_many, one core"`, one run each): the leaf size is not what holds
+/// the queries back.
 const LEAF: usize = 4;
 
 #[derive(Debug, Clone, Copy)]
