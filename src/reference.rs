@@ -1207,27 +1207,43 @@ impl ReferenceFace {
         direction: crate::bspline::Direction,
         values: &[Real],
     ) -> Result<Self, ReferenceError> {
-        // Each family of modes refined as a space on the reference's surface.
-        let refine = |grids: &[Vec<Vector3<Real>>]| -> Result<Vec<Vec<Vector3<Real>>>, BSplineError> {
-            let space = SurfaceSpace::new(self.surface.clone(), grids.to_vec())?;
-            Ok(space.refine_knots(direction, values)?.modes().to_vec())
-        };
-        let surface = self.surface.refine_knots(direction, values)?;
-        let space = match &self.space {
-            None => None,
-            Some(modes) => Some(SpaceModes {
-                grid: refine(&modes.grid)?,
+        // The surface and every mode, identity then expression, refined as one space: the base
+        // once, and each grid by the same insertion.
+        let modes = self.space.as_ref();
+        let grids: Vec<Vec<Vector3<Real>>> = modes
+            .into_iter()
+            .flat_map(|m| m.grid.iter().chain(&m.expressions.grid))
+            .cloned()
+            .collect();
+        let finer = SurfaceSpace::new(self.surface.clone(), grids)?.refine_knots(direction, values)?;
+        let space = modes.map(|m| {
+            let (identity, expressions) = finer.modes().split_at(m.grid.len());
+            SpaceModes {
+                grid: identity.to_vec(),
+                structure: m.structure.clone(),
+                sigma: m.sigma.clone(),
+                note: m.note.clone(),
                 expressions: ExpressionModes {
-                    grid: refine(&modes.expressions.grid)?,
-                    ..modes.expressions.clone()
+                    names: m.expressions.names.clone(),
+                    grid: expressions.to_vec(),
+                    structure: m.expressions.structure.clone(),
+                    note: m.expressions.note.clone(),
+                    landmarks: m.expressions.landmarks.clone(),
                 },
-                ..modes.clone()
-            }),
-        };
+                landmark_base: m.landmark_base.clone(),
+                landmarks: m.landmarks.clone(),
+            }
+        });
         let refined = ReferenceFace {
-            surface,
+            surface: finer.base().clone(),
+            structure: self.structure.clone(),
+            photo_structure: self.photo_structure.clone(),
             space: None,
-            ..self.clone()
+            edges: self.edges.clone(),
+            frame: self.frame,
+            clip: self.clip.clone(),
+            fit: self.fit,
+            provenance: self.provenance.clone(),
         };
         refined.with_space(space)
     }
