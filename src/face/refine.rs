@@ -3137,15 +3137,11 @@ fn check_refine(
     options: &RefineOptions,
 ) -> Result<(), FaceError> {
     if views.len() != fit.poses.len() || views.iter().any(|v| v.points.len() != POINT_COUNT) {
-        return FaceError::option(
-            "views",
-            views.len().to_string(),
-            "one per photo of the fit, 40 points each",
-        );
+        return FaceError::option("views", views.len(), "one per photo of the fit, 40 points each");
     }
     let positive = |v: Real| v > 0.0 && v.is_finite();
     if !(1..=6).contains(&options.levels) {
-        return FaceError::option("levels", options.levels.to_string(), "1 to 6");
+        return FaceError::option("levels", options.levels, "1 to 6");
     }
     if options.field_levels == 0 {
         return FaceError::option("field levels", "0", "at least 1");
@@ -3161,12 +3157,12 @@ fn check_refine(
         ("field sigma", options.field_sigma),
     ] {
         if !positive(v) {
-            return FaceError::option(name, v.to_string(), "positive and finite");
+            return FaceError::option(name, v, "positive and finite");
         }
     }
     for (name, v) in [("min gain", options.min_gain), ("full gain", options.full_gain)] {
         if v.is_nan() {
-            return FaceError::option(name, v.to_string(), "a number (infinite allowed)");
+            return FaceError::option(name, v, "a number (infinite allowed)");
         }
     }
     Ok(())

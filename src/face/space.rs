@@ -1040,36 +1040,24 @@ fn check_photo_fit(
         .iter()
         .position(|v| v.len() != POINT_COUNT || v.iter().any(|p| !(p.x.is_finite() && p.y.is_finite())))
     {
-        return FaceError::option("view", i.to_string(), "40 finite points");
+        return FaceError::option("view", i, "40 finite points");
     }
     let noise = options.noise;
     if !(noise > 0.0 && noise.is_finite()) {
-        return FaceError::option("noise", noise.to_string(), "positive and finite");
+        return FaceError::option("noise", noise, "positive and finite");
     }
     if let Some(prior) = options.expressions {
         let positive = |x: Real| x > 0.0 && x.is_finite();
         if !positive(prior.sigma) {
-            return FaceError::option(
-                "expression deviation",
-                prior.sigma.to_string(),
-                "positive and finite",
-            );
+            return FaceError::option("expression deviation", prior.sigma, "positive and finite");
         }
         if let Some(shared) = prior.shared_sigma
             && !positive(shared)
         {
-            return FaceError::option(
-                "shared expression deviation",
-                shared.to_string(),
-                "positive and finite",
-            );
+            return FaceError::option("shared expression deviation", shared, "positive and finite");
         }
         if !(prior.rate >= 0.0 && prior.rate.is_finite()) {
-            return FaceError::option(
-                "expression rate",
-                prior.rate.to_string(),
-                "non-negative and finite",
-            );
+            return FaceError::option("expression rate", prior.rate, "non-negative and finite");
         }
     }
     let total: Real = point_weights.iter().sum();
@@ -1082,7 +1070,7 @@ fn check_photo_fit(
     }
     let weight = options.lips;
     if !(weight >= 0.0 && weight.is_finite()) {
-        return FaceError::option("lip weight", weight.to_string(), "non-negative and finite");
+        return FaceError::option("lip weight", weight, "non-negative and finite");
     }
     if !lips.is_empty() && lips.len() != views.len() {
         return FaceError::option(
