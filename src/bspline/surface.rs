@@ -225,7 +225,7 @@ impl BSplineSurface {
 
     /// Whether `(u, v)` lies in the domain, or the error that says why not.
     #[inline]
-    fn check(&self, u: Real, v: Real) -> Result<(), BSplineError> {
+    pub(super) fn check(&self, u: Real, v: Real) -> Result<(), BSplineError> {
         check_parameter(&self.knots_u, &self.knots_v, u, v)
     }
 
@@ -336,15 +336,7 @@ impl BSplineSurface {
     /// As [`BSplineSurface::eval`].
     pub fn normal(&self, u: Real, v: Real) -> Result<Option<Unit<Vector3<Real>>>, BSplineError> {
         let d = self.derivatives(u, v, 1)?;
-        let (fu, fv) = (d.get(1, 0), d.get(0, 1));
-        let n = fu.cross(&fv);
-        let norm = n.norm();
-        // Relative test: the sine of the angle between the tangents must not be rounding noise.
-        if norm > 1e-12 * fu.norm() * fv.norm() && norm > 0.0 {
-            Ok(Some(Unit::new_unchecked(n / norm)))
-        } else {
-            Ok(None)
-        }
+        Ok(unit_normal(&d.get(1, 0), &d.get(0, 1)))
     }
 
     /// Evaluates the surface on the grid `us × vs`, row-major: `out[i·vs.len() + k] = F(us[i], vs[k])`.
@@ -739,6 +731,15 @@ pub(crate) fn check_parameter(
         knots.check_in_domain(direction, value)?;
     }
     Ok(())
+}
+
+/// `(F_u × F_v) / |F_u × F_v|` from the tangents, or `None` where they are parallel or
+/// vanish ([`BSplineSurface::normal`]).
+pub(super) fn unit_normal(fu: &Vector3<Real>, fv: &Vector3<Real>) -> Option<Unit<Vector3<Real>>> {
+    let n = fu.cross(fv);
+    let norm = n.norm();
+    // Relative test: the sine of the angle between the tangents must not be rounding noise.
+    (norm > 1e-12 * fu.norm() * fv.norm() && norm > 0.0).then(|| Unit::new_unchecked(n / norm))
 }
 
 /// The partial derivatives of a surface at one parameter, from

@@ -112,27 +112,78 @@ fn a_plane_is_flat_and_a_collapsed_edge_has_no_curvature() {
     assert!(s.curvature(1.5, 0.5).is_err());
 }
 
+/// A surface of degrees `(p, q)` over `[0, 2]²` with random heights on a `rows × cols`
+/// grid, its knots uneven (a double knot in `u` when there is room).
+fn random_surface(p: usize, q: usize, rows: usize, cols: usize, seed: u64) -> BSplineSurface {
+    let mut rng = Lcg(seed);
+    let mut knots = |degree: usize, count: usize, double: bool| {
+        let inner = count - degree - 1;
+        let mut at: Vec<Real> = (1..=inner)
+            .map(|i| 2.0 * (i as Real + 0.3 * rng.uniform(-1.0, 1.0)) / (inner + 1) as Real)
+            .collect();
+        if double && inner >= 2 {
+            at[1] = at[0];
+        }
+        let mut all = vec![0.0; degree + 1];
+        all.extend(at);
+        all.extend(vec![2.0; degree + 1]);
+        KnotVector::new(degree, all).unwrap()
+    };
+    let ku = knots(p, rows, true);
+    let kv = knots(q, cols, false);
+    let grid = (0..rows * cols)
+        .map(|i| Point3::new((i / cols) as Real, (i % cols) as Real, rng.uniform(-1.0, 1.0)))
+        .collect();
+    BSplineSurface::new(ku, kv, rows, cols, grid).unwrap()
+}
+
+/// The grid's values are the pointwise ones to the last bit (normal, curvatures and
+/// directions), for every degree from 1 to 5 either way, uneven and repeated knots, the
+/// domain's ends, and where a collapsed edge leaves no normal; and the pointwise normal is
+/// [`BSplineSurface::normal`]'s.
 #[test]
 fn a_curvature_grid_is_the_curvature_at_each_parameter() {
-    let mut rng = Lcg(11);
-    let k = KnotVector::clamped_uniform(3, 7, 0.0, 2.0).unwrap();
-    let grid = (0..49)
-        .map(|i| Point3::new((i / 7) as Real, (i % 7) as Real, rng.uniform(-1.0, 1.0)))
-        .collect();
-    let surface = BSplineSurface::new(k.clone(), k, 7, 7, grid).unwrap();
-    let (us, vs) = ([0.0, 0.3, 1.1, 2.0], [0.5, 1.7, 1.9]);
-    let map = surface.curvature_grid(&us, &vs).unwrap();
-    assert_eq!(map.len(), 12);
-    for (i, &u) in us.iter().enumerate() {
-        for (j, &v) in vs.iter().enumerate() {
-            let one = surface.curvature(u, v).unwrap().unwrap();
-            let at = map[i * vs.len() + j].as_ref().unwrap();
-            assert_eq!(
-                (at.mean, at.gaussian, at.principal),
-                (one.mean, one.gaussian, one.principal)
-            );
+    let (us, vs) = (
+        [0.0, 0.3, 0.61, 1.1, 1.37, 2.0],
+        [0.0, 0.5, 1.0 / 3.0, 1.7, 1.9, 2.0],
+    );
+    for (p, q) in [(1, 1), (2, 3), (3, 3), (3, 2), (5, 4), (1, 5)] {
+        for seed in 0..3 {
+            let surface = random_surface(p, q, 8, 7, 10 * seed + p as u64);
+            let map = surface.curvature_grid(&us, &vs).unwrap();
+            assert_eq!(map.len(), us.len() * vs.len());
+            for (i, &u) in us.iter().enumerate() {
+                for (j, &v) in vs.iter().enumerate() {
+                    let one = surface.curvature(u, v).unwrap();
+                    assert_eq!(map[i * vs.len() + j], one, "degrees {p}, {q} at ({u}, {v})");
+                    assert_eq!(
+                        one.map(|c| c.normal),
+                        surface.normal(u, v).unwrap(),
+                        "degrees {p}, {q} at ({u}, {v})"
+                    );
+                }
+            }
         }
     }
+    // The row u = 0 collapsed to one point: no curvature along it, in the grid as alone.
+    let k = KnotVector::clamped_uniform(3, 5, 0.0, 2.0).unwrap();
+    let collapsed = (0..25)
+        .map(|i| {
+            if i / 5 == 0 {
+                Point3::origin()
+            } else {
+                Point3::new((i / 5) as Real, (i % 5) as Real, 0.1 * (i % 3) as Real)
+            }
+        })
+        .collect();
+    let surface = BSplineSurface::new(k.clone(), k, 5, 5, collapsed).unwrap();
+    let map = surface.curvature_grid(&[0.0, 1.0], &vs).unwrap();
+    for (j, &v) in vs.iter().enumerate() {
+        assert!(map[j].is_none());
+        assert_eq!(map[vs.len() + j], surface.curvature(1.0, v).unwrap());
+        assert!(map[vs.len() + j].is_some());
+    }
     assert!(surface.curvature_grid(&[0.5], &[2.5]).is_err());
+    assert!(surface.curvature_grid(&[-0.5], &[1.0]).is_err());
     assert!(surface.curvature_grid(&[], &vs).unwrap().is_empty());
 }
