@@ -87,6 +87,9 @@ pub fn encode_depth_png(map: &DepthMap) -> Result<Vec<u8>, EncodeError> {
         let mut encoder = png::Encoder::new(Cursor::new(&mut bytes), width as u32, height as u32);
         encoder.set_color(png::ColorType::Grayscale);
         encoder.set_depth(png::BitDepth::Sixteen);
+        // `fdeflate`'s fast mode, as `image` writes the other PNGs: on a 448 × 512 map of a
+        // face, 1.1 ms and 259 KB against 21.7 ms and 199 KB for the default (zlib's level).
+        encoder.set_compression(png::Compression::Fast);
         encoder
             .add_text_chunk(
                 "splineface-depth".to_owned(),
