@@ -15,12 +15,13 @@ use std::time::Instant;
 use nalgebra::Point2;
 use rayon::prelude::*;
 
-use super::{Input, PhotoImage, PipelineError, Reconstruction};
+use super::{Input, PhotoImage, PipelineError, PipelineOptions, Reconstruction};
 use crate::Real;
 use crate::align::PhotoPoints;
 use crate::detect::LandmarkedFace;
 use crate::landmarker::ShapePredictor;
 use crate::landmarks::{LandmarkPoints, read_landmarks_json, read_pts};
+use crate::reference::ReferenceFace;
 use crate::structure::from_ibug68;
 
 /// The photo file extensions a folder of photos is read for (case-insensitive).
@@ -548,30 +549,69 @@ impl PhotoSet {
         result: &Reconstruction,
         model_seconds: Option<f64>,
     ) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
-        self.files_with(result, result.files()?, model_seconds)
+        let photo_outputs = self.photo_outputs(Some(result));
+        self.finish_files(result.files()?, photo_outputs, "overlays", model_seconds)
     }
 
-    /// [`PhotoSet::files`] given `result`'s own files, as [`super::reconstruct_files`] made
-    /// them.
+    /// [`super::reconstruct_files`] on the set's inputs, then [`PhotoSet::files`]: the same
+    /// reconstruction and files, sooner. The overlays are drawn while the texture is baked
+    /// (they need only the photos' fits), and the report times them there.
     ///
     /// # Errors
-    /// [`PipelineError::Encode`] if `report.json` cannot be re-encoded.
-    pub fn files_with(
+    /// As [`super::reconstruct_files`]; [`PipelineError::Encode`] if `report.json` cannot be
+    /// re-encoded.
+    pub fn reconstruct_files(
         &self,
-        result: &Reconstruction,
-        mut files: super::OutputFiles,
+        reference: &ReferenceFace,
+        options: &PipelineOptions,
+        progress: impl FnMut(&str),
         model_seconds: Option<f64>,
-    ) -> Result<super::OutputFiles, PipelineError> {
+    ) -> Result<(Reconstruction, super::OutputFiles), PipelineError> {
+        let (result, files, overlays) =
+            super::reconstruct_files_beside(&self.inputs, reference, options, progress, |result| {
+                self.photo_outputs(Some(result))
+            })?;
+        let files = self.finish_files(
+            files,
+            overlays,
+            "overlays (drawn beside the texture)",
+            model_seconds,
+        )?;
+        Ok((result, files))
+    }
+
+    /// The overlays and landmark files ([`photo_files`]), the warnings about them, and the
+    /// seconds they took.
+    fn photo_outputs(&self, result: Option<&Reconstruction>) -> PhotoOutputs {
         let start = Instant::now();
-        let mut warnings = self.warnings.clone();
-        let photo_outputs = photo_files(
+        let mut warnings = Vec::new();
+        let files = photo_files(
             &self.records,
             Path::new("landmarks"),
             &self.inputs,
-            Some(result),
+            result,
             &mut warnings,
         );
-        let overlay_seconds = start.elapsed().as_secs_f64();
+        PhotoOutputs {
+            files,
+            warnings,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+
+    /// A reconstruction's own `files` with the photos' outputs added, `report.json` completed (the
+    /// front stages, the overlays' time under `overlay_stage`, the warnings) and the page.
+    fn finish_files(
+        &self,
+        mut files: super::OutputFiles,
+        photo_outputs: PhotoOutputs,
+        overlay_stage: &str,
+        model_seconds: Option<f64>,
+    ) -> Result<super::OutputFiles, PipelineError> {
+        let mut warnings = self.warnings.clone();
+        warnings.extend(photo_outputs.warnings);
+        let overlay_seconds = photo_outputs.seconds;
+        let photo_outputs = photo_outputs.files;
         let mut front_stages: Vec<serde_json::Value> = Vec::new();
         if let Some(seconds) = model_seconds {
             front_stages.push(serde_json::json!({ "stage": "landmark model", "ms": 1e3 * seconds }));
@@ -591,7 +631,7 @@ impl PhotoSet {
             }
             if let Some(list) = report["timings"].as_array_mut() {
                 list.splice(0..0, front_stages);
-                list.push(serde_json::json!({ "stage": "overlays", "ms": 1e3 * overlay_seconds }));
+                list.push(serde_json::json!({ "stage": overlay_stage, "ms": 1e3 * overlay_seconds }));
             }
             if !self.timings.is_empty() {
                 report["photo_timings"] = self
@@ -634,6 +674,13 @@ impl PhotoSet {
         files.push(("report.html".into(), page.into_bytes()));
         Ok(files)
     }
+}
+
+/// [`PhotoSet::photo_outputs`]' answer.
+struct PhotoOutputs {
+    files: Vec<(PathBuf, Vec<u8>)>,
+    warnings: Vec<String>,
+    seconds: f64,
 }
 
 /// Applies `edit` to `report.json` among `files` (parsed, then written back as before), if it

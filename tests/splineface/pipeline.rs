@@ -354,7 +354,7 @@ fn demo_then_reconstruct_from_its_photos_and_from_its_points() {
         .collect();
     assert_eq!(
         stages[stages.len() - 2..],
-        ["overlays", "report page"],
+        ["overlays (drawn beside the texture)", "report page"],
         "{stages:?}"
     );
     assert!(String::from_utf8_lossy(&run.stdout).contains("ms  writing the files"));

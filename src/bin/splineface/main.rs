@@ -16,7 +16,7 @@ use splineface::compare::{CompareOptions, FileComparison, LengthUnit, MeshFiles,
 use splineface::face::Units;
 use splineface::face::modes::ModeFiles;
 use splineface::mesh::read_mesh;
-use splineface::pipeline::{InputError, gather_inputs, photo_list, reconstruct_files};
+use splineface::pipeline::{InputError, gather_inputs, photo_list};
 use splineface::reference::{ReferenceFace, ReferenceOptions, ReferenceScan, build_reference};
 use splineface::render::{DepthFormat, DepthMap, MAX_SIDE, View, shaded_png};
 
@@ -531,9 +531,7 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
     drop(predictor);
     let mut options = options;
     options.expression_of = output.expression_photo(&set.inputs)?;
-    let (result, files) = reconstruct_files(&set.inputs, &reference, &options, progress)?;
-    progress("drawing the overlays and the report page");
-    let files = set.files_with(&result, files, model_seconds)?;
+    let (result, files) = set.reconstruct_files(&reference, &options, progress, model_seconds)?;
     let writing = std::time::Instant::now();
     write_into(out, &files)?;
     let writing = writing.elapsed();
