@@ -1182,3 +1182,56 @@ fn points_only(
         })
         .collect()
 }
+
+/// The face space's fit and the refinement run beside RASL on every photo; when RASL leaves a
+/// photo out (here: a point off the image), that work is thrown away, the report says so, and
+/// the face is the one the photos RASL kept give on their own.
+#[test]
+fn a_photo_rasl_leaves_out_is_left_out_of_the_face_too() {
+    let scene = scene(&SceneOptions {
+        photos: 4,
+        ..SceneOptions::default()
+    })
+    .unwrap();
+    let mut inputs = scene.inputs.clone();
+    let width = inputs[2].image.as_ref().unwrap().colour.width() as f64;
+    // A brow point just off the right edge: fine for the fit, refused by RASL.
+    let brow = &mut inputs[2].points.points[10];
+    brow.x = width + 2.0;
+    let options = PipelineOptions::default();
+    let result = reconstruct(&inputs, ReferenceFace::embedded(), &options, |_| {}).unwrap();
+    let name = &inputs[2].points.name;
+    assert!(
+        result
+            .dropped
+            .iter()
+            .any(|d| &d.name == name && d.reason.contains("outside")),
+        "{:?}",
+        result.dropped
+    );
+    assert!(
+        result
+            .timings
+            .iter()
+            .any(|(stage, _)| stage.contains("thrown away")),
+        "{:?}",
+        result.timings
+    );
+    let kept: Vec<_> = [0, 1, 3].map(|k| inputs[k].clone()).into();
+    let alone = reconstruct(&kept, ReferenceFace::embedded(), &options, |_| {}).unwrap();
+    assert_eq!(result.depth.photos.len(), 3);
+    assert_eq!(
+        result.face.surface().control_points(),
+        alone.face.surface().control_points()
+    );
+    assert_eq!(
+        result.space.as_ref().unwrap().weights,
+        alone.space.as_ref().unwrap().weights
+    );
+    assert!(
+        alone
+            .timings
+            .iter()
+            .all(|(stage, _)| !stage.contains("thrown away"))
+    );
+}
