@@ -149,6 +149,74 @@ pub enum TexelSource {
     Filled,
 }
 
+/// [`FaceTexture::turntable`]'s five views of a mesh before an atlas colours them
+/// ([`crate::render::PhotoGeometry`]): made while the atlas is baked, so that only the
+/// colouring waits for it. The picture is the same to the bit.
+pub(crate) struct Turntable {
+    textured: crate::mesh::TriangleMesh,
+    views: Vec<crate::render::PhotoGeometry>,
+}
+
+impl Turntable {
+    const YAWS: [Real; 5] = [-60.0, -30.0, 0.0, 30.0, 60.0];
+    const SIZE: (usize, usize) = (320, 400);
+
+    /// The views of `mesh`, textured by its surface parameters.
+    pub(crate) fn new(mesh: &ClippedMesh) -> Result<Self, FaceError> {
+        use crate::render::{Camera, Lighting, PhotoGeometry, PhotoLook};
+        let textured = mesh.parameter_textured();
+        let (lo, hi) = crate::geometry::bounding_box(textured.positions()).expect("a mesh has vertices");
+        let centre = nalgebra::center(&lo, &hi);
+        let extent = (hi - lo).max().max(Real::MIN_POSITIVE);
+        let distance = 6.0 * extent;
+        let focal = 0.85 * Self::SIZE.1 as Real * distance / extent;
+        let lighting = Lighting {
+            direction: Vector3::new(0.2, 0.35, 1.0),
+            diffuse: 0.5,
+            ambient: 0.6,
+            specular: 0.03,
+            shininess: 30.0,
+            shadow_softness: 0.02 * extent,
+        };
+        let look = PhotoLook {
+            background_top: [0.32, 0.34, 0.36],
+            background_bottom: [0.22, 0.23, 0.25],
+            blur: 0.0,
+            noise: 0.0,
+            seed: 0,
+            supersampling: 1,
+        };
+        let views = Self::YAWS
+            .par_iter()
+            .map(|&yaw| {
+                let camera = Camera::looking_at_head([yaw, 0.0, 0.0], &centre, distance, focal, Self::SIZE);
+                PhotoGeometry::new(&textured, &camera, &lighting, &look).map_err(|e| FaceError::Option {
+                    name: "turntable view",
+                    value: e.to_string(),
+                    expected: "a mesh the renderer accepts",
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Turntable { textured, views })
+    }
+
+    /// The five views coloured by `atlas`, side by side.
+    pub(crate) fn render(&self, atlas: &RgbImage) -> RgbImage {
+        let map = crate::render::ColourMap::new(atlas);
+        let views: Vec<RgbImage> = self
+            .views
+            .par_iter()
+            .map(|view| view.render(&self.textured, &map))
+            .collect();
+        let (width, height) = Self::SIZE;
+        let mut strip = RgbImage::new((width * views.len()) as u32, height as u32);
+        for (k, view) in views.iter().enumerate() {
+            image::imageops::replace(&mut strip, view, (k * width) as i64, 0);
+        }
+        strip
+    }
+}
+
 /// A baked texture ([`bake_texture`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct FaceTexture {
@@ -190,48 +258,7 @@ impl FaceTexture {
     /// # Errors
     /// [`FaceError::Option`] if the renderer refuses (it should not for a face's mesh).
     pub fn turntable(&self, mesh: &ClippedMesh) -> Result<RgbImage, FaceError> {
-        use crate::render::{Camera, ColourMap, Lighting, PhotoLook, render_photo};
-        const YAWS: [Real; 5] = [-60.0, -30.0, 0.0, 30.0, 60.0];
-        const SIZE: (usize, usize) = (320, 400);
-        let textured = mesh.parameter_textured();
-        let (lo, hi) = crate::geometry::bounding_box(textured.positions()).expect("a mesh has vertices");
-        let centre = nalgebra::center(&lo, &hi);
-        let extent = (hi - lo).max().max(Real::MIN_POSITIVE);
-        let distance = 6.0 * extent;
-        let focal = 0.85 * SIZE.1 as Real * distance / extent;
-        let map = ColourMap::new(&self.atlas);
-        let lighting = Lighting {
-            direction: Vector3::new(0.2, 0.35, 1.0),
-            diffuse: 0.5,
-            ambient: 0.6,
-            specular: 0.03,
-            shininess: 30.0,
-            shadow_softness: 0.02 * extent,
-        };
-        let look = PhotoLook {
-            background_top: [0.32, 0.34, 0.36],
-            background_bottom: [0.22, 0.23, 0.25],
-            blur: 0.0,
-            noise: 0.0,
-            seed: 0,
-            supersampling: 1,
-        };
-        let views: Vec<RgbImage> = YAWS
-            .par_iter()
-            .map(|&yaw| {
-                let camera = Camera::looking_at_head([yaw, 0.0, 0.0], &centre, distance, focal, SIZE);
-                render_photo(&textured, &map, &camera, &lighting, &look).map_err(|e| FaceError::Option {
-                    name: "turntable view",
-                    value: e.to_string(),
-                    expected: "a mesh the renderer accepts",
-                })
-            })
-            .collect::<Result<_, _>>()?;
-        let mut strip = RgbImage::new((SIZE.0 * YAWS.len()) as u32, SIZE.1 as u32);
-        for (k, view) in views.iter().enumerate() {
-            image::imageops::replace(&mut strip, view, (k * SIZE.0) as i64, 0);
-        }
-        Ok(strip)
+        Ok(Turntable::new(mesh)?.render(&self.atlas))
     }
 
     /// The confidence map as a picture: seen texels green (brighter where the best photo's

@@ -17,6 +17,7 @@ use super::{PipelineError, Reconstruction, encode_error};
 use crate::Real;
 use crate::bspline::{StepOptions, encode_step};
 use crate::face::Units;
+use crate::face::texture::Turntable;
 use crate::geometry::LengthUnit;
 use crate::io::encode_png;
 use crate::mesh::{PlyEncoding, PngTexture, TriangleMesh, encode_glb, encode_ply};
@@ -301,6 +302,13 @@ fn encode_parts(parts: &[Part<'_>]) -> Result<Files, PipelineError> {
     Ok(files)
 }
 
+/// [`Reconstruction::untextured_files`]' answer: the files, and the turntable's views made
+/// ready for the atlas when asked for.
+pub(super) struct Untextured {
+    files: Files,
+    turntable: Option<Turntable>,
+}
+
 /// Samples along each side of `curvature.png`.
 pub const CURVATURE_SIDE: usize = 256;
 
@@ -313,36 +321,50 @@ impl Reconstruction {
     pub fn files(&self) -> Result<Files, PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
-        let mut parts = self.textured_parts(&mesh);
+        let mut parts = self.textured_parts(&mesh, None);
         parts.extend(self.untextured_parts(&mesh));
         let files = encode_parts(&parts)?;
         self.finish_files(files, &mesh, start)
     }
 
     /// The files that do not depend on the texture, encoded: what [`super::reconstruct_files`]
-    /// encodes while the texture is baked. With their wall time, seconds.
-    pub(super) fn untextured_files(&self) -> Result<(Files, Real), PipelineError> {
+    /// encodes while the texture is baked; and, `with_turntable`, the turntable's views made
+    /// ready for the atlas. With their wall time, seconds.
+    pub(super) fn untextured_files(&self, with_turntable: bool) -> Result<(Untextured, Real), PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
-        let files = encode_parts(&self.untextured_parts(&mesh))?;
-        Ok((files, start.elapsed().as_secs_f64()))
+        let (files, turntable) = rayon::join(
+            || encode_parts(&self.untextured_parts(&mesh)),
+            || with_turntable.then(|| Turntable::new(&self.mesh)),
+        );
+        let untextured = Untextured {
+            files: files?,
+            turntable: turntable.transpose().map_err(encode_error("turntable.png"))?,
+        };
+        Ok((untextured, start.elapsed().as_secs_f64()))
     }
 
     /// [`Reconstruction::files`] given [`Reconstruction::untextured_files`]'s: the same files
     /// in the same order.
-    pub(super) fn files_after(&self, untextured: Files) -> Result<Files, PipelineError> {
+    pub(super) fn files_after(&self, untextured: Untextured) -> Result<Files, PipelineError> {
         let start = Instant::now();
         let mesh = self.output_mesh();
-        let mut files = encode_parts(&self.textured_parts(&mesh))?;
-        files.extend(untextured);
+        let turntable = untextured.turntable.as_ref();
+        let mut files = encode_parts(&self.textured_parts(&mesh, turntable))?;
+        files.extend(untextured.files);
         self.finish_files(files, &mesh, start)
     }
 
-    /// The files that show the texture (the meshes carry it): encoded last, once it is baked.
-    fn textured_parts<'a>(&'a self, mesh: &'a TriangleMesh) -> Vec<Part<'a>> {
+    /// The files that show the texture (the meshes carry it): encoded last, once it is baked;
+    /// the turntable from `turntable`'s views when they were made ready.
+    fn textured_parts<'a>(
+        &'a self,
+        mesh: &'a TriangleMesh,
+        turntable: Option<&'a Turntable>,
+    ) -> Vec<Part<'a>> {
         vec![
             Box::new(|| self.mesh_files(mesh)),
-            Box::new(|| self.texture_files()),
+            Box::new(move || self.texture_files(turntable)),
         ]
     }
 
@@ -421,16 +443,20 @@ impl Reconstruction {
         Ok(files)
     }
 
-    /// With a texture: `texture-confidence.png` and `turntable.png`.
-    fn texture_files(&self) -> Result<Files, PipelineError> {
+    /// With a texture: `texture-confidence.png` and `turntable.png` (from `turntable`'s views
+    /// when they were made ready).
+    fn texture_files(&self, turntable: Option<&Turntable>) -> Result<Files, PipelineError> {
         let Some(texture) = &self.texture else {
             return Ok(Vec::new());
         };
         let confidence =
             encode_png(&texture.confidence_image()).map_err(encode_error("texture-confidence.png"))?;
-        let turntable = texture
-            .turntable(&self.mesh)
-            .map_err(encode_error("turntable.png"))?;
+        let turntable = match turntable {
+            Some(views) => views.render(&texture.atlas),
+            None => texture
+                .turntable(&self.mesh)
+                .map_err(encode_error("turntable.png"))?,
+        };
         Ok(vec![
             ("texture-confidence.png".into(), confidence),
             (

@@ -465,7 +465,7 @@ fn run<T: Send>(
     mut progress: impl FnMut(&str),
     encode: bool,
     beside_texture: impl FnOnce(&Reconstruction) -> T + Send,
-) -> Result<(Reconstruction, Option<OutputFiles>, T), PipelineError> {
+) -> Result<(Reconstruction, Option<files::Untextured>, T), PipelineError> {
     let needed = check_request(inputs, options)?;
     // The structure to deform from is where the photo path puts landmarks on the reference.
     let reference: &ReferenceFace = &reference.as_seen_in_photos();
@@ -639,7 +639,7 @@ fn run<T: Send>(
         timings,
         options: *options,
     };
-    let untextured = |r: &Reconstruction| encode.then(|| r.untextured_files());
+    let untextured = |r: &Reconstruction| encode.then(|| r.untextured_files(with_images));
     let (untextured, beside) = if with_images {
         progress(if encode {
             "baking the texture from the photos (and encoding the outputs that need none)"

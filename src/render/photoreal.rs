@@ -427,163 +427,229 @@ pub fn render_photo(
     lighting: &Lighting,
     look: &PhotoLook,
 ) -> Result<RgbImage, RenderError> {
-    let texture = mesh.texture().ok_or(RenderError::NoTextureCoordinates)?;
-    let setting = |ok: bool, message: String| {
-        if ok {
-            Ok(())
-        } else {
-            Err(RenderError::Setting { message })
-        }
-    };
-    setting(
-        (16..=8192).contains(&camera.width) && (16..=8192).contains(&camera.height),
-        format!(
-            "{}×{} pixels: each side must be 16 to 8192",
-            camera.width, camera.height
-        ),
-    )?;
-    setting(
-        camera.focal > 0.0 && camera.focal.is_finite(),
-        format!("focal length {} must be positive", camera.focal),
-    )?;
-    setting(
-        (1..=4).contains(&look.supersampling),
-        format!("supersampling {} must be 1 to 4", look.supersampling),
-    )?;
-    setting(
-        lighting.direction.iter().all(|c| c.is_finite()) && lighting.direction.norm() > 0.0,
-        "the light direction must be a finite, non-zero vector".to_owned(),
-    )?;
-    setting(
-        look.blur >= 0.0 && look.blur.is_finite() && look.noise >= 0.0 && look.noise.is_finite(),
-        "blur and noise must be finite and non-negative".to_owned(),
-    )?;
+    Ok(PhotoGeometry::new(mesh, camera, lighting, look)?.render(mesh, colour_map))
+}
 
-    let factor = look.supersampling;
-    let big = camera.scaled(factor);
-    let (width, height) = (big.width, big.height);
-    let in_camera: Vec<Point3<Real>> = mesh.positions().iter().map(|p| big.to_camera(p)).collect();
-    // Points behind the camera get no key and so never win a pixel.
-    let near = 1e-6;
-    let pixels: Vec<[Real; 2]> = in_camera
-        .iter()
-        .map(|q| {
-            let z = q.z.max(near);
-            [
-                big.centre.x + big.focal * q.x / z,
-                big.centre.y + big.focal * q.y / z,
-            ]
-        })
-        .collect();
-    let keys: Vec<Real> = in_camera
-        .iter()
-        .map(|q| if q.z > near { 1.0 / q.z } else { Real::NEG_INFINITY })
-        .collect();
-    let (_, ids) = rasterise(&pixels, &keys, mesh.triangles(), width, height);
+/// The half of [`render_photo`] that needs no colour map: which triangle each pixel shows, the
+/// vertices' places and normals, the shadow map and the background, for one mesh, camera,
+/// light and look. [`PhotoGeometry::render`] then colours it, the same picture to the bit, so
+/// that the geometry can be made while the colour map is still being made.
+pub(crate) struct PhotoGeometry {
+    camera: Camera,
+    big: Camera,
+    lighting: Lighting,
+    look: PhotoLook,
+    pixels: Vec<[Real; 2]>,
+    keys: Vec<Real>,
+    ids: Vec<u32>,
+    normals: Vec<Vector3<Real>>,
+    towards_light: Vector3<Real>,
+    shadows: ShadowMap,
+    background: Vec<[Real; 3]>,
+}
 
-    let normals = vertex_normals(mesh);
-    // The light toward the world: viewing frame → OpenCV camera frame → world.
-    let viewing = lighting.direction.normalize();
-    let towards_light = big.rotation.inverse() * Vector3::new(viewing.x, -viewing.y, -viewing.z);
-    let shadows = ShadowMap::new(
-        mesh,
-        &towards_light,
-        lighting.shadow_softness,
-        shadow_side(&pixels, &keys),
-    );
-    let eye = big.position();
-    // The background's gradient, row by row (linear light).
-    let background: Vec<[Real; 3]> = (0..height)
-        .map(|row| {
-            let t = row as Real / (height.max(2) - 1) as Real;
-            std::array::from_fn(|k| {
-                let top = srgb_to_linear(look.background_top[k] as f32) as Real;
-                let bottom = srgb_to_linear(look.background_bottom[k] as f32) as Real;
-                top * (1.0 - t) + bottom * t
+impl PhotoGeometry {
+    /// The geometry of `mesh` seen by `camera` under `lighting` with `look` ([`render_photo`]'s
+    /// checks and errors).
+    pub(crate) fn new(
+        mesh: &TriangleMesh,
+        camera: &Camera,
+        lighting: &Lighting,
+        look: &PhotoLook,
+    ) -> Result<Self, RenderError> {
+        mesh.texture().ok_or(RenderError::NoTextureCoordinates)?;
+        let setting = |ok: bool, message: String| {
+            if ok {
+                Ok(())
+            } else {
+                Err(RenderError::Setting { message })
+            }
+        };
+        setting(
+            (16..=8192).contains(&camera.width) && (16..=8192).contains(&camera.height),
+            format!(
+                "{}×{} pixels: each side must be 16 to 8192",
+                camera.width, camera.height
+            ),
+        )?;
+        setting(
+            camera.focal > 0.0 && camera.focal.is_finite(),
+            format!("focal length {} must be positive", camera.focal),
+        )?;
+        setting(
+            (1..=4).contains(&look.supersampling),
+            format!("supersampling {} must be 1 to 4", look.supersampling),
+        )?;
+        setting(
+            lighting.direction.iter().all(|c| c.is_finite()) && lighting.direction.norm() > 0.0,
+            "the light direction must be a finite, non-zero vector".to_owned(),
+        )?;
+        setting(
+            look.blur >= 0.0 && look.blur.is_finite() && look.noise >= 0.0 && look.noise.is_finite(),
+            "blur and noise must be finite and non-negative".to_owned(),
+        )?;
+
+        let factor = look.supersampling;
+        let big = camera.scaled(factor);
+        let (width, height) = (big.width, big.height);
+        let in_camera: Vec<Point3<Real>> = mesh.positions().iter().map(|p| big.to_camera(p)).collect();
+        // Points behind the camera get no key and so never win a pixel.
+        let near = 1e-6;
+        let pixels: Vec<[Real; 2]> = in_camera
+            .iter()
+            .map(|q| {
+                let z = q.z.max(near);
+                [
+                    big.centre.x + big.focal * q.x / z,
+                    big.centre.y + big.focal * q.y / z,
+                ]
             })
+            .collect();
+        let keys: Vec<Real> = in_camera
+            .iter()
+            .map(|q| if q.z > near { 1.0 / q.z } else { Real::NEG_INFINITY })
+            .collect();
+        let (_, ids) = rasterise(&pixels, &keys, mesh.triangles(), width, height);
+
+        let normals = vertex_normals(mesh);
+        // The light toward the world: viewing frame → OpenCV camera frame → world.
+        let viewing = lighting.direction.normalize();
+        let towards_light = big.rotation.inverse() * Vector3::new(viewing.x, -viewing.y, -viewing.z);
+        let shadows = ShadowMap::new(
+            mesh,
+            &towards_light,
+            lighting.shadow_softness,
+            shadow_side(&pixels, &keys),
+        );
+        // The background's gradient, row by row (linear light).
+        let background: Vec<[Real; 3]> = (0..height)
+            .map(|row| {
+                let t = row as Real / (height.max(2) - 1) as Real;
+                std::array::from_fn(|k| {
+                    let top = srgb_to_linear(look.background_top[k] as f32) as Real;
+                    let bottom = srgb_to_linear(look.background_bottom[k] as f32) as Real;
+                    top * (1.0 - t) + bottom * t
+                })
+            })
+            .collect();
+
+        Ok(PhotoGeometry {
+            camera: *camera,
+            big,
+            lighting: *lighting,
+            look: *look,
+            pixels,
+            keys,
+            ids,
+            normals,
+            towards_light,
+            shadows,
+            background,
         })
-        .collect();
+    }
 
-    let mut linear = vec![[0.0 as Real; 3]; width * height];
-    linear.par_chunks_mut(width).enumerate().for_each(|(row, out)| {
-        for (col, o) in out.iter_mut().enumerate() {
-            let id = ids[row * width + col];
-            if id == u32::MAX {
-                *o = background[row];
-                continue;
-            }
-            let k = id as usize;
-            let t = mesh.triangles()[k];
-            // Perspective-correct barycentrics from the screen ones.
-            let [a, b, c] = t.map(|v| pixels[v as usize]);
-            let (x, y) = (col as Real, row as Real);
-            let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-            let wa = ((b[0] - x) * (c[1] - y) - (c[0] - x) * (b[1] - y)) / area;
-            let wb = ((c[0] - x) * (a[1] - y) - (a[0] - x) * (c[1] - y)) / area;
-            let wc = 1.0 - wa - wb;
-            let [ka, kb, kc] = t.map(|v| keys[v as usize]);
-            let sum = wa * ka + wb * kb + wc * kc;
-            let w = [wa * ka / sum, wb * kb / sum, wc * kc / sum];
-            let corners = t.map(|v| mesh.positions()[v as usize]);
-            let p =
-                Point3::from(w[0] * corners[0].coords + w[1] * corners[1].coords + w[2] * corners[2].coords);
-            let uv_index = texture.triangles[k];
-            let uvs = uv_index.map(|v| texture.uvs[v as usize]);
-            let uv = w[0] * uvs[0].coords + w[1] * uvs[1].coords + w[2] * uvs[2].coords;
-            let albedo = colour_map.sample(uv.x, uv.y);
-            let mut n = (w[0] * normals[t[0] as usize]
-                + w[1] * normals[t[1] as usize]
-                + w[2] * normals[t[2] as usize])
-                .try_normalize(0.0)
-                .unwrap_or_else(Vector3::z);
-            let to_eye = (eye - p).try_normalize(0.0).unwrap_or_else(Vector3::z);
-            if n.dot(&to_eye) < 0.0 {
-                n = -n; // the back of a surface: lit as its front would be
-            }
-            let lambert = n.dot(&towards_light).max(0.0);
-            let shadow = if lambert > 0.0 { shadows.light(&p) } else { 0.0 };
-            let half = (towards_light + to_eye).try_normalize(0.0).unwrap_or(n);
-            let sheen = lighting.specular * n.dot(&half).max(0.0).powf(lighting.shininess) * shadow;
-            for ch in 0..3 {
-                o[ch] = albedo[ch] * (lighting.ambient + lighting.diffuse * lambert * shadow) + sheen;
-            }
-        }
-    });
-
-    // Down to the camera's size (box filter), then blur, the transfer curve and noise.
-    let (w, h) = (camera.width, camera.height);
-    let mut small = vec![[0.0 as Real; 3]; w * h];
-    for (k, o) in small.iter_mut().enumerate() {
-        let (col, row) = (k % w, k / w);
-        for dy in 0..factor {
-            for dx in 0..factor {
-                let s = linear[(row * factor + dy) * width + col * factor + dx];
+    /// The picture, its colours read from `colour_map` at `mesh`'s texture coordinates: `mesh`
+    /// must be the one the geometry was made of.
+    pub(crate) fn render(&self, mesh: &TriangleMesh, colour_map: &ColourMap) -> RgbImage {
+        let PhotoGeometry {
+            camera,
+            big,
+            lighting,
+            look,
+            pixels,
+            keys,
+            ids,
+            normals,
+            towards_light,
+            shadows,
+            background,
+        } = self;
+        let texture = mesh.texture().expect("checked when the geometry was made");
+        let (width, height) = (big.width, big.height);
+        let factor = look.supersampling;
+        let eye = big.position();
+        let mut linear = vec![[0.0 as Real; 3]; width * height];
+        linear.par_chunks_mut(width).enumerate().for_each(|(row, out)| {
+            for (col, o) in out.iter_mut().enumerate() {
+                let id = ids[row * width + col];
+                if id == u32::MAX {
+                    *o = background[row];
+                    continue;
+                }
+                let k = id as usize;
+                let t = mesh.triangles()[k];
+                // Perspective-correct barycentrics from the screen ones.
+                let [a, b, c] = t.map(|v| pixels[v as usize]);
+                let (x, y) = (col as Real, row as Real);
+                let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+                let wa = ((b[0] - x) * (c[1] - y) - (c[0] - x) * (b[1] - y)) / area;
+                let wb = ((c[0] - x) * (a[1] - y) - (a[0] - x) * (c[1] - y)) / area;
+                let wc = 1.0 - wa - wb;
+                let [ka, kb, kc] = t.map(|v| keys[v as usize]);
+                let sum = wa * ka + wb * kb + wc * kc;
+                let w = [wa * ka / sum, wb * kb / sum, wc * kc / sum];
+                let corners = t.map(|v| mesh.positions()[v as usize]);
+                let p = Point3::from(
+                    w[0] * corners[0].coords + w[1] * corners[1].coords + w[2] * corners[2].coords,
+                );
+                let uv_index = texture.triangles[k];
+                let uvs = uv_index.map(|v| texture.uvs[v as usize]);
+                let uv = w[0] * uvs[0].coords + w[1] * uvs[1].coords + w[2] * uvs[2].coords;
+                let albedo = colour_map.sample(uv.x, uv.y);
+                let mut n = (w[0] * normals[t[0] as usize]
+                    + w[1] * normals[t[1] as usize]
+                    + w[2] * normals[t[2] as usize])
+                    .try_normalize(0.0)
+                    .unwrap_or_else(Vector3::z);
+                let to_eye = (eye - p).try_normalize(0.0).unwrap_or_else(Vector3::z);
+                if n.dot(&to_eye) < 0.0 {
+                    n = -n; // the back of a surface: lit as its front would be
+                }
+                let lambert = n.dot(&towards_light).max(0.0);
+                let shadow = if lambert > 0.0 { shadows.light(&p) } else { 0.0 };
+                let half = (towards_light + to_eye).try_normalize(0.0).unwrap_or(n);
+                let sheen = lighting.specular * n.dot(&half).max(0.0).powf(lighting.shininess) * shadow;
                 for ch in 0..3 {
-                    o[ch] += s[ch];
+                    o[ch] = albedo[ch] * (lighting.ambient + lighting.diffuse * lambert * shadow) + sheen;
                 }
             }
+        });
+
+        // Down to the camera's size (box filter), then blur, the transfer curve and noise.
+        let (w, h) = (camera.width, camera.height);
+        let mut small = vec![[0.0 as Real; 3]; w * h];
+        for (k, o) in small.iter_mut().enumerate() {
+            let (col, row) = (k % w, k / w);
+            for dy in 0..factor {
+                for dx in 0..factor {
+                    let s = linear[(row * factor + dy) * width + col * factor + dx];
+                    for ch in 0..3 {
+                        o[ch] += s[ch];
+                    }
+                }
+            }
+            for v in o.iter_mut() {
+                *v /= (factor * factor) as Real;
+            }
         }
-        for v in o.iter_mut() {
-            *v /= (factor * factor) as Real;
+        if look.blur > 0.0 {
+            small = gaussian_blur(&small, w, h, look.blur);
         }
+        let mut noise = SplitMix(look.seed);
+        let mut image = RgbImage::new(w as u32, h as u32);
+        for (k, p) in small.iter().enumerate() {
+            let c = if look.noise == 0.0 {
+                p.map(linear_to_srgb8)
+            } else {
+                p.map(|v| {
+                    let v = linear_to_srgb(v) + look.noise * noise.gaussian();
+                    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+                })
+            };
+            image.put_pixel((k % w) as u32, (k / w) as u32, Rgb(c));
+        }
+        image
     }
-    if look.blur > 0.0 {
-        small = gaussian_blur(&small, w, h, look.blur);
-    }
-    let mut noise = SplitMix(look.seed);
-    let mut image = RgbImage::new(w as u32, h as u32);
-    for (k, p) in small.iter().enumerate() {
-        let c = if look.noise == 0.0 {
-            p.map(linear_to_srgb8)
-        } else {
-            p.map(|v| {
-                let v = linear_to_srgb(v) + look.noise * noise.gaussian();
-                (v.clamp(0.0, 1.0) * 255.0).round() as u8
-            })
-        };
-        image.put_pixel((k % w) as u32, (k / w) as u32, Rgb(c));
-    }
-    Ok(image)
 }
 
 /// A separable Gaussian blur of standard deviation `sigma` pixels (edges clamped).
