@@ -605,7 +605,7 @@ impl PhotoGeometry {
                 if n.dot(&to_eye) < 0.0 {
                     n = -n; // the back of a surface: lit as its front would be
                 }
-                let lambert = n.dot(&towards_light).max(0.0);
+                let lambert = n.dot(towards_light).max(0.0);
                 let shadow = if lambert > 0.0 { shadows.light(&p) } else { 0.0 };
                 let half = (towards_light + to_eye).try_normalize(0.0).unwrap_or(n);
                 let sheen = lighting.specular * n.dot(&half).max(0.0).powf(lighting.shininess) * shadow;
