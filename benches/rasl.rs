@@ -9,6 +9,7 @@
 #[path = "../tools/common/mod.rs"]
 mod common;
 
+use std::borrow::Cow;
 use std::hint::black_box;
 
 use common::Lcg;
@@ -19,7 +20,7 @@ use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
 
-fn photos(count: usize) -> Vec<RaslPhoto> {
+fn photos(count: usize) -> Vec<RaslPhoto<'static>> {
     let r = ReferenceFace::embedded();
     let face = FaceSurface::deform(r, r.structure(), Deformation::Affine).unwrap();
     let mesh = face.mesh(&MeshOptions { spacing: 1.0 }).unwrap().mesh;
@@ -38,7 +39,7 @@ fn photos(count: usize) -> Vec<RaslPhoto> {
                 .map(|p| p + nalgebra::Vector2::new(1.5 * rng.gaussian(), 1.5 * rng.gaussian()))
                 .collect();
             RaslPhoto {
-                image: photo.image,
+                image: Cow::Owned(photo.image),
                 points: PhotoPoints::new(format!("p{k}"), points).unwrap(),
             }
         })

@@ -24,6 +24,7 @@ use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::geometry::{affine, homogeneous};
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
+use std::borrow::Cow;
 
 fn main() -> anyhow::Result<()> {
     let r = ReferenceFace::embedded();
@@ -73,7 +74,7 @@ fn main() -> anyhow::Result<()> {
             })
             .collect();
         copies.push(RaslPhoto {
-            image: GreyImage::new(200, 240, data)?,
+            image: Cow::Owned(GreyImage::new(200, 240, data)?),
             points: PhotoPoints::new(format!("copy{i}"), points)?,
         });
         maps.push(m);
@@ -94,7 +95,7 @@ fn main() -> anyhow::Result<()> {
             .map(|p| p + nalgebra::Vector2::new(1.5 * rng.gaussian(), 1.5 * rng.gaussian()))
             .collect();
         poses.push(RaslPhoto {
-            image: photo.image,
+            image: Cow::Owned(photo.image),
             points: PhotoPoints::new(format!("p{k}"), points)?,
         });
     }

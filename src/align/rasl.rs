@@ -90,11 +90,12 @@ impl Default for RaslOptions {
     }
 }
 
-/// One photo for RASL: its grey image and its points.
+/// One photo for RASL: its grey image (owned, or lent: RASL only reads it, and a caller that
+/// keeps its photos need not copy them) and its points.
 #[derive(Debug, Clone)]
-pub struct RaslPhoto {
+pub struct RaslPhoto<'a> {
     /// The image.
-    pub image: GreyImage,
+    pub image: std::borrow::Cow<'a, GreyImage>,
     /// Its 40 points, in its pixels.
     pub points: PhotoPoints,
 }
@@ -232,7 +233,7 @@ fn check_options(options: &RaslOptions) -> Result<(), AlignError> {
 
 /// Each usable photo's two columns (the photo, then its mirror image with its points mirrored
 /// and relabelled), with the usable photos' names and the others' reasons.
-fn columns_of(photos: &[RaslPhoto], options: &RaslOptions) -> (Vec<Column>, Vec<String>, Vec<Dropped>) {
+fn columns_of(photos: &[RaslPhoto<'_>], options: &RaslOptions) -> (Vec<Column>, Vec<String>, Vec<Dropped>) {
     // Each photo's two columns are cut out side by side (the crops and their gradients are
     // copies of a few megabytes each), then listed in the photos' order.
     let window = (options.width, options.height);
@@ -362,7 +363,7 @@ fn frontal_from_warps(columns: &[Column], warps: &[Matrix2x3<Real>]) -> Result<F
 }
 
 /// Checks a photo for RASL.
-fn check(photo: &RaslPhoto) -> Result<(), String> {
+fn check(photo: &RaslPhoto<'_>) -> Result<(), String> {
     photo.points.validate().map_err(|e| e.to_string())?;
     let (w, h) = (photo.image.width(), photo.image.height());
     for (k, p) in photo.points.points.iter().enumerate() {
@@ -639,7 +640,7 @@ fn soft_threshold(x: f32, threshold: f32) -> f32 {
 /// # Errors
 /// [`AlignError::NoPhotos`] for an empty batch, [`AlignError::Frontal`] when no photo is
 /// usable (saying why each was dropped) or an option is out of range.
-pub fn rasl_frontal(photos: &[RaslPhoto], options: &RaslOptions) -> Result<RaslResult, AlignError> {
+pub fn rasl_frontal(photos: &[RaslPhoto<'_>], options: &RaslOptions) -> Result<RaslResult, AlignError> {
     if photos.is_empty() {
         return Err(AlignError::NoPhotos);
     }

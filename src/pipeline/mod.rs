@@ -486,59 +486,18 @@ fn run<T: Send>(
     }
     let names: Vec<String> = inputs.iter().map(|i| i.points.name.clone()).collect();
     let inputs: Vec<&Input> = agreeing.iter().map(|&k| &inputs[k]).collect();
-    let space = face_space(reference, options);
-    // With images the face space's fit and the refinement read the photos and their points,
-    // not the frontal structure: they run beside RASL, on every photo that agreed. Both
-    // stages keep two cores only partly busy, and side by side they save about a fifth of
-    // `reconstruct`'s wall time (see the README's figures). Should RASL leave a photo out,
-    // that work is thrown away and done again on the photos it kept.
-    let all: Vec<usize> = (0..inputs.len()).collect();
-    let beside = with_images && space.is_some();
     progress(&if with_images {
         format!("aligning {} photos and their mirror images (RASL)", inputs.len())
     } else {
         format!("frontal structure from the points of {} photos", inputs.len())
     });
-    if beside {
-        progress(
-            "fitting the face space to the photos' points and refining it with their pixels, beside RASL",
-        );
-    }
-    let ((frontal, frontal_seconds), early) = rayon::join(
-        || {
-            let frontal = frontal_structure(&inputs, options, with_images);
-            (frontal, start.elapsed().as_secs_f64())
-        },
-        || {
-            let (space, fit_options) = space.as_ref().filter(|_| beside)?;
-            let photos = KeptPhotos {
-                inputs: &inputs,
-                kept: &all,
-                with_images,
-            };
-            let mut timings = Vec::new();
-            let fitted = space_face(
-                space,
-                fit_options,
-                reference,
-                &photos,
-                options,
-                (&mut timings, Instant::now()),
-                &mut |_| {},
-            );
-            Some((fitted, timings))
-        },
-    );
-    let (frontal, rasl, kept) = frontal?;
-    timings.push((
-        if beside {
-            "frontal structure (beside the face space)"
-        } else {
-            "frontal structure"
-        }
-        .to_owned(),
-        frontal_seconds,
-    ));
+    // The face space's fit and the refinement read the photos and their points, not the
+    // frontal structure, and could run beside RASL. Measured (`tools/ab-bench`, 8 runs by
+    // turns, `lps-head/photos-8`): no faster (wall 1.01 / 1.09 s best / median beside, 1.00 /
+    // 1.09 s after; each stage already keeps both cores busy), 5% more CPU and a peak of 217–224
+    // MB against 171–173. So they run after it, on the photos it kept.
+    let (frontal, rasl, kept) = frontal_structure(&inputs, options, with_images)?;
+    timings.push(("frontal structure".to_owned(), start.elapsed().as_secs_f64()));
     dropped.extend(rasl.as_ref().map(|r| r.dropped.clone()).unwrap_or_default());
     if kept.len() < needed {
         return Err(PipelineError::TooFewPhotos {
@@ -556,45 +515,26 @@ fn run<T: Send>(
     timings.push(("depth".to_owned(), start.elapsed().as_secs_f64()));
 
     let start = Instant::now();
+    let space = face_space(reference, options);
     let kept_agreement: Vec<Real> = kept.iter().map(|&k| agreement[agreeing[k]]).collect();
     let (structure_weight, weight_note) = structure_weight(options, &depth, &kept_agreement);
     let (face, space_fit, shape, refinement, surface_seconds) = match &space {
         Some((space, fit_options)) => {
-            let fitted = match early {
-                Some((fitted, early_timings)) if kept == all => {
-                    timings.extend(
-                        early_timings
-                            .into_iter()
-                            .map(|(stage, seconds)| (format!("{stage} (beside RASL)"), seconds)),
-                    );
-                    fitted?
-                }
-                early => {
-                    if let Some((_, early_timings)) = early {
-                        timings.extend(early_timings.into_iter().map(|(stage, seconds)| {
-                            (
-                                format!("{stage} (beside RASL, thrown away: RASL left a photo out)"),
-                                seconds,
-                            )
-                        }));
-                    }
-                    progress("fitting the face space to the photos' points and meshing the face");
-                    let photos = KeptPhotos {
-                        inputs: &inputs,
-                        kept: &kept,
-                        with_images,
-                    };
-                    space_face(
-                        space,
-                        fit_options,
-                        reference,
-                        &photos,
-                        options,
-                        (&mut timings, start),
-                        &mut progress,
-                    )?
-                }
+            progress("fitting the face space to the photos' points and meshing the face");
+            let photos = KeptPhotos {
+                inputs: &inputs,
+                kept: &kept,
+                with_images,
             };
+            let fitted = space_face(
+                space,
+                fit_options,
+                reference,
+                &photos,
+                options,
+                (&mut timings, start),
+                &mut progress,
+            )?;
             (
                 fitted.face,
                 Some(fitted.fit),
@@ -774,7 +714,7 @@ fn frontal_structure(
         let photos: Vec<RaslPhoto> = inputs
             .iter()
             .map(|i| RaslPhoto {
-                image: i.image.as_ref().expect("checked above").grey.clone(),
+                image: std::borrow::Cow::Borrowed(&i.image.as_ref().expect("checked above").grey),
                 points: i.points.clone(),
             })
             .collect();

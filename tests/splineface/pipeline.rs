@@ -1183,9 +1183,8 @@ fn points_only(
         .collect()
 }
 
-/// The face space's fit and the refinement run beside RASL on every photo; when RASL leaves a
-/// photo out (here: a point off the image), that work is thrown away, the report says so, and
-/// the face is the one the photos RASL kept give on their own.
+/// A photo RASL leaves out (here: a point off the image) is left out of the face too: the face
+/// and its weights are the ones the photos RASL kept give on their own.
 #[test]
 fn a_photo_rasl_leaves_out_is_left_out_of_the_face_too() {
     let scene = scene(&SceneOptions {
@@ -1209,14 +1208,6 @@ fn a_photo_rasl_leaves_out_is_left_out_of_the_face_too() {
         "{:?}",
         result.dropped
     );
-    assert!(
-        result
-            .timings
-            .iter()
-            .any(|(stage, _)| stage.contains("thrown away")),
-        "{:?}",
-        result.timings
-    );
     let kept: Vec<_> = [0, 1, 3].map(|k| inputs[k].clone()).into();
     let alone = reconstruct(&kept, ReferenceFace::embedded(), &options, |_| {}).unwrap();
     assert_eq!(result.depth.photos.len(), 3);
@@ -1227,11 +1218,5 @@ fn a_photo_rasl_leaves_out_is_left_out_of_the_face_too() {
     assert_eq!(
         result.space.as_ref().unwrap().weights,
         alone.space.as_ref().unwrap().weights
-    );
-    assert!(
-        alone
-            .timings
-            .iter()
-            .all(|(stage, _)| !stage.contains("thrown away"))
     );
 }

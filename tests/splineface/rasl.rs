@@ -10,6 +10,7 @@ use splineface::face::{Deformation, FaceSurface, MeshOptions};
 use splineface::geometry::{affine, homogeneous};
 use splineface::reference::ReferenceFace;
 use splineface::render::{View, synthetic_photo};
+use std::borrow::Cow;
 
 use crate::common::Lcg;
 
@@ -36,7 +37,7 @@ fn warped_copy(base: &GreyImage, m: &Matrix2x3<Real>) -> GreyImage {
 }
 
 struct Batch {
-    photos: Vec<RaslPhoto>,
+    photos: Vec<RaslPhoto<'static>>,
     /// `M_i`: copy pixels → base pixels.
     maps: Vec<Matrix2x3<Real>>,
     base_points: Vec<Point2<Real>>,
@@ -86,7 +87,7 @@ fn batch(copies: usize, noise: Real, seed: u64) -> Batch {
             blocks.push((i, x0, y0, size));
         }
         photos.push(RaslPhoto {
-            image,
+            image: Cow::Owned(image),
             points: PhotoPoints::new(format!("copy{i}"), points).unwrap(),
         });
         maps.push(m);
@@ -341,7 +342,7 @@ fn rasl_feeds_the_depth_stage() {
         let view = View::from_yaw_pitch_roll_degrees(yaw, pitch, roll);
         let photo = synthetic_photo(&mesh, r.structure(), &view, 200, 240, 0.12).unwrap();
         photos.push(RaslPhoto {
-            image: photo.image,
+            image: Cow::Owned(photo.image),
             points: PhotoPoints::new(format!("p{k}"), photo.points).unwrap(),
         });
         poses.push(Pose::from_yaw_pitch_roll_degrees(yaw, pitch, roll, 1.0));
