@@ -89,57 +89,66 @@ impl BSplineSurface {
         }
         let (p, q) = (self.degree_u(), self.degree_v());
         let (du, dv) = (p.min(2), q.min(2));
-        // Per parameter: its span and its basis functions' derivatives up to the second
-        // (`(p + 1)` values per order, as `derivatives` lays them out).
-        let basis = |knots: &super::KnotVector, t: Real, order: usize| {
-            let span = knots.span_in_domain(t);
+        // Every parameter's span (the first one outside the domain is the error), as
+        // `eval_grid_into` finds them.
+        let (lo_u, lo_v) = (self.domain_u().0, self.domain_v().0);
+        let u_spans = us
+            .iter()
+            .map(|&u| self.locate(u, lo_v).map(|(su, _)| su))
+            .collect::<Result<Vec<_>, _>>()?;
+        let v_spans = vs
+            .iter()
+            .map(|&v| self.locate(lo_u, v).map(|(_, sv)| sv))
+            .collect::<Result<Vec<_>, _>>()?;
+        // A parameter's basis functions' derivatives on its span up to the second (`(p + 1)`
+        // values per order, as `derivatives` lays them out).
+        let basis = |knots: &super::KnotVector, span: usize, t: Real, order: usize| {
             let mut n = vec![0.0; (order + 1) * (knots.degree() + 1)];
             super::basis::basis_derivatives(knots, span, t, order, &mut n);
-            (span, n)
+            n
         };
-        let (lo_u, lo_v) = (self.domain_u().0, self.domain_v().0);
-        for &u in us {
-            self.check(u, lo_v)?;
-        }
-        for &v in vs {
-            self.check(lo_u, v)?;
-        }
-        let v_basis: Vec<(usize, Vec<Real>)> = vs.iter().map(|&v| basis(self.knots_v(), v, dv)).collect();
+        let v_basis: Vec<(usize, Vec<Real>)> = vs
+            .iter()
+            .zip(&v_spans)
+            .map(|(&v, &sv)| (sv, basis(self.knots_v(), sv, v, dv)))
+            .collect();
         let cols = self.cols();
         let mut out = vec![None; us.len() * vs.len()];
-        out.par_chunks_mut(vs.len()).zip(us).for_each(|(row, &u)| {
-            let (su, nu) = basis(self.knots_u(), u, du);
-            // The intermediate curves' control points: `Σᵣ N⁽ᵏ⁾ᵣ(u) b_{su−p+r, c}`, summed in
-            // `derivatives`' order.
-            let curves: Vec<Vec<Vector3<Real>>> = (0..=du)
-                .map(|k| {
-                    let weights = &nu[k * (p + 1)..(k + 1) * (p + 1)];
-                    (0..cols)
-                        .map(|c| {
-                            let mut t = Vector3::zeros();
-                            for (r, &w) in weights.iter().enumerate() {
-                                t += self.control_points()[(su - p + r) * cols + c].coords * w;
-                            }
-                            t
-                        })
-                        .collect()
-                })
-                .collect();
-            for (o, (sv, nv)) in row.iter_mut().zip(&v_basis) {
-                let d = |k: usize, l: usize| -> Vector3<Real> {
-                    if k > du || l > dv {
-                        return Vector3::zeros();
-                    }
-                    let weights = &nv[l * (q + 1)..(l + 1) * (q + 1)];
-                    curves[k][sv - q..=*sv]
-                        .iter()
-                        .zip(weights)
-                        .map(|(t, &w)| t * w)
-                        .sum()
-                };
-                *o = curvature_from([d(1, 0), d(0, 1)], [d(2, 0), d(1, 1), d(0, 2)]);
-            }
-        });
+        out.par_chunks_mut(vs.len())
+            .zip(us.par_iter().zip(&u_spans))
+            .for_each(|(row, (&u, &su))| {
+                let nu = basis(self.knots_u(), su, u, du);
+                // The intermediate curves' control points: `Σᵣ N⁽ᵏ⁾ᵣ(u) b_{su−p+r, c}`, summed in
+                // `derivatives`' order.
+                let curves: Vec<Vec<Vector3<Real>>> = (0..=du)
+                    .map(|k| {
+                        let weights = &nu[k * (p + 1)..(k + 1) * (p + 1)];
+                        (0..cols)
+                            .map(|c| {
+                                let mut t = Vector3::zeros();
+                                for (r, &w) in weights.iter().enumerate() {
+                                    t += self.control_points()[(su - p + r) * cols + c].coords * w;
+                                }
+                                t
+                            })
+                            .collect()
+                    })
+                    .collect();
+                for (o, (sv, nv)) in row.iter_mut().zip(&v_basis) {
+                    let d = |k: usize, l: usize| -> Vector3<Real> {
+                        if k > du || l > dv {
+                            return Vector3::zeros();
+                        }
+                        let weights = &nv[l * (q + 1)..(l + 1) * (q + 1)];
+                        curves[k][sv - q..=*sv]
+                            .iter()
+                            .zip(weights)
+                            .map(|(t, &w)| t * w)
+                            .sum()
+                    };
+                    *o = curvature_from([d(1, 0), d(0, 1)], [d(2, 0), d(1, 1), d(0, 2)]);
+                }
+            });
         Ok(out)
     }
 }

@@ -225,13 +225,13 @@ impl BSplineSurface {
 
     /// Whether `(u, v)` lies in the domain, or the error that says why not.
     #[inline]
-    pub(super) fn check(&self, u: Real, v: Real) -> Result<(), BSplineError> {
+    fn check(&self, u: Real, v: Real) -> Result<(), BSplineError> {
         check_parameter(&self.knots_u, &self.knots_v, u, v)
     }
 
     /// The spans of `(u, v)`, or the error that says why there are none.
     #[inline]
-    fn locate(&self, u: Real, v: Real) -> Result<(usize, usize), BSplineError> {
+    pub(super) fn locate(&self, u: Real, v: Real) -> Result<(usize, usize), BSplineError> {
         self.check(u, v)?;
         Ok((self.knots_u.span_in_domain(u), self.knots_v.span_in_domain(v)))
     }

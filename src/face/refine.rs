@@ -116,10 +116,11 @@ pub struct RefineOptions {
     /// centres).
     pub spacing: Real,
     /// Gauss-Newton iterations per level at most (a level also stops when a step gains less
-    /// than 10⁻⁴ of the cost; 10⁻⁵ when the table below was measured). 16 by default. Measured by `tools/photo_eval` (the same pools
-    /// and sets, `--methods "default,refine iterations 8,landmarks only"` and the variants
-    /// below; mean ratio of the error to the mean face's for 2 / 3 / 4 / 8 / 16 photos, and
-    /// to the landmark fit's over the 105 sets scored):
+    /// than 10⁻⁴ of the cost; 10⁻⁵ when the table below was measured). 16 by default.
+    /// Measured by `tools/photo_eval` (the same pools and sets, `--methods "default,refine
+    /// iterations 8,landmarks only"` and the variants below; mean ratio of the error to the
+    /// mean face's for 2 / 3 / 4 / 8 / 16 photos, and to the landmark fit's over the 105 sets
+    /// scored):
     ///
     /// | variant | 2 | 3 | 4 | 8 | 16 | to the landmark fit | sets > 2% worse than it |
     /// |---|---|---|---|---|---|---|---|
@@ -3017,8 +3018,7 @@ impl FaceSpace {
         level_index: usize,
         options: &RefineOptions,
     ) -> Result<Samples, FaceError> {
-        let coarser = (options.levels - 1 - level_index) as i32;
-        let spacing = options.spacing * 2.0_f64.powi(coarser);
+        let spacing = options.spacing * coarseness(options, level_index);
         let shifted: Vec<&[Vector3<Real>]> = problem
             .shifted
             .iter()
@@ -3050,8 +3050,7 @@ impl FaceSpace {
         (level_index, samples): (usize, Option<Samples>),
         options: &'a RefineOptions,
     ) -> Result<Level<'a>, FaceError> {
-        let coarser = (options.levels - 1 - level_index) as i32;
-        let eye_pixels = options.eye_pixels / 2.0_f64.powi(coarser);
+        let eye_pixels = options.eye_pixels / coarseness(options, level_index);
         let images = || -> Vec<LevelImage> {
             problem
                 .landmarks
@@ -3163,6 +3162,13 @@ impl FaceSpace {
         let (state, level) = run(state, finest, Some(finest_samples?), &mut iterations)?;
         Ok((state, iterations, level))
     }
+}
+
+/// How much coarser level `level_index` of `options.levels` is than the finest: `2ᵏ` for the
+/// `k`-th level above it (its samples that much further apart, its eyes that many times fewer
+/// pixels apart).
+fn coarseness(options: &RefineOptions, level_index: usize) -> Real {
+    2.0_f64.powi((options.levels - 1 - level_index) as i32)
 }
 
 /// [`FaceSpace::refine_photos`]' checks: one view per photo of the fit with 40 points, 1 to 6

@@ -518,7 +518,7 @@ fn run<T: Send>(
     let space = face_space(reference, options);
     let kept_agreement: Vec<Real> = kept.iter().map(|&k| agreement[agreeing[k]]).collect();
     let (structure_weight, weight_note) = structure_weight(options, &depth, &kept_agreement);
-    let (face, space_fit, shape, refinement, surface_seconds) = match &space {
+    let (face, space_fit, shape, refinement, surface_start) = match &space {
         Some((space, fit_options)) => {
             progress("fitting the face space to the photos' points and meshing the face");
             let photos = KeptPhotos {
@@ -540,21 +540,17 @@ fn run<T: Send>(
                 Some(fitted.fit),
                 fitted.shape,
                 fitted.refinement,
-                fitted.surface_seconds,
+                fitted.surface_start,
             )
         }
         None => {
             progress("deforming the reference surface and meshing the face");
             let (face, shape) = deformed_face(reference, &depth, structure_weight, options)?;
-            (face, None, shape, None, start.elapsed().as_secs_f64())
+            (face, None, shape, None, start)
         }
     };
-    let surface_start = Instant::now();
     let mesh = face.mesh(&options.mesh)?;
-    timings.push((
-        "surface".to_owned(),
-        surface_seconds + surface_start.elapsed().as_secs_f64(),
-    ));
+    timings.push(("surface".to_owned(), surface_start.elapsed().as_secs_f64()));
     let space_and_fit = space.as_ref().map(|(s, _)| s).zip(space_fit.as_ref());
     let fits = photo_fits(&inputs, &kept, &depth, space_and_fit, refinement.as_ref())?;
     let mut result = Reconstruction {
@@ -768,13 +764,13 @@ struct KeptPhotos<'a> {
 }
 
 /// Stage 3 by the face space: its fit, the face, how it was made, the refinement when it ran,
-/// and the seconds spent making the face's surface after them.
+/// and when the surface's own timing starts.
 struct SpaceFace {
     face: FaceSurface,
     fit: crate::face::PhotoSpaceFit,
     shape: String,
     refinement: Option<Refinement>,
-    surface_seconds: Real,
+    surface_start: Instant,
 }
 
 /// The reference's face space and the fit's options, when [`PipelineOptions::shape`] asks
@@ -927,7 +923,7 @@ fn space_face(
         fit,
         shape,
         refinement,
-        surface_seconds: surface_start.elapsed().as_secs_f64(),
+        surface_start,
     })
 }
 

@@ -549,7 +549,7 @@ impl PhotoSet {
         result: &Reconstruction,
         model_seconds: Option<f64>,
     ) -> Result<Vec<(PathBuf, Vec<u8>)>, PipelineError> {
-        let photo_outputs = self.photo_outputs(Some(result));
+        let photo_outputs = self.photo_outputs(result);
         self.finish_files(result.files()?, photo_outputs, "overlays", model_seconds)
     }
 
@@ -569,7 +569,7 @@ impl PhotoSet {
     ) -> Result<(Reconstruction, super::OutputFiles), PipelineError> {
         let (result, files, overlays) =
             super::reconstruct_files_beside(&self.inputs, reference, options, progress, |result| {
-                self.photo_outputs(Some(result))
+                self.photo_outputs(result)
             })?;
         let files = self.finish_files(
             files,
@@ -582,14 +582,14 @@ impl PhotoSet {
 
     /// The overlays and landmark files ([`photo_files`]), the warnings about them, and the
     /// seconds they took.
-    fn photo_outputs(&self, result: Option<&Reconstruction>) -> PhotoOutputs {
+    fn photo_outputs(&self, result: &Reconstruction) -> PhotoOutputs {
         let start = Instant::now();
         let mut warnings = Vec::new();
         let files = photo_files(
             &self.records,
             Path::new("landmarks"),
             &self.inputs,
-            result,
+            Some(result),
             &mut warnings,
         );
         PhotoOutputs {
