@@ -366,6 +366,16 @@ pub struct RefineOptions {
     /// neutral photos (whose small weights grow too) worse: what the fit finds is not simply
     /// the true expression scaled down.
     pub expression_shift: Option<Real>,
+    /// `τₑ`, the prior deviation of each photo's own expression shift, or `None` to hold each
+    /// photo's expression at the landmark fit's (or at the shared shift's). With it, the
+    /// expressions the landmark fit gave the photos (those whose weight, averaged over the
+    /// photos, reaches [`SHIFTED_EXPRESSION_MIN`]; at most [`PHOTO_EXPRESSIONS_MAX`] of them,
+    /// the strongest) move in each photo on its own: photo `i`'s weight `eᵢₗ` by `δᵢₗ`,
+    /// costing `δᵢₗ² / τₑ²` and held in `[0, 1]`. The photos' pixels then tell each photo's
+    /// expression by how the photo disagrees with the others, and the landmarks move with it.
+    /// Each shift is a photo's unknown beside its camera's ([`Level::add_sample`]): the
+    /// equations' per-photo blocks widen from 7 to up to 11.
+    pub expression_photos: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
     /// that helped and on those that did not alike.
@@ -564,6 +574,7 @@ impl Default for RefineOptions {
             photo_weights: false,
             expression_normals: true,
             expression_shift: None,
+            expression_photos: None,
             landmark_slack: Real::INFINITY,
             held_out: false,
             min_held_out_gain: 0.0,
@@ -794,10 +805,16 @@ pub struct Look {
 /// Unknowns per photo: rotation (3), log-scale, offset (2), perspective.
 const CAMERA: usize = 7;
 
-/// The expressions [`RefineOptions::expression_shift`] moves: those whose weight, averaged
-/// over the photos, reaches [`SHIFTED_EXPRESSION_MIN`], the strongest
-/// [`SHIFTED_EXPRESSIONS_MAX`] at most, in the modes' order.
-fn shifted_expressions(expressions: &[Vec<Real>]) -> Vec<usize> {
+/// The most expressions each photo shifts on its own ([`RefineOptions::expression_photos`]).
+pub const PHOTO_EXPRESSIONS_MAX: usize = 4;
+
+/// A photo's block of unknowns at its widest: its camera's and its own expression shifts.
+const PHOTO_MAX: usize = CAMERA + PHOTO_EXPRESSIONS_MAX;
+
+/// The expressions [`RefineOptions::expression_shift`] (or
+/// [`RefineOptions::expression_photos`]) moves: those whose weight, averaged over the photos,
+/// reaches [`SHIFTED_EXPRESSION_MIN`], the strongest `max` at most, in the modes' order.
+fn shifted_expressions(expressions: &[Vec<Real>], max: usize) -> Vec<usize> {
     let n = expressions.len().max(1) as Real;
     let modes = expressions.first().map_or(0, Vec::len);
     let mut strong: Vec<(usize, Real)> = (0..modes)
@@ -805,7 +822,7 @@ fn shifted_expressions(expressions: &[Vec<Real>]) -> Vec<usize> {
         .filter(|&(_, mean)| mean >= SHIFTED_EXPRESSION_MIN)
         .collect();
     strong.sort_by(|a, b| b.1.total_cmp(&a.1));
-    strong.truncate(SHIFTED_EXPRESSIONS_MAX);
+    strong.truncate(max);
     let mut chosen: Vec<usize> = strong.into_iter().map(|(l, _)| l).collect();
     chosen.sort_unstable();
     chosen
@@ -1110,6 +1127,9 @@ struct Samples {
     modes: Vec<Vec<Vector3<Real>>>,
     /// `expression[i][s]`.
     expression: Vec<Vec<Vector3<Real>>>,
+    /// `photo_modes[s][l]`: each expression the photos shift on their own
+    /// ([`Problem::photo_shifted`]) at the sample.
+    photo_modes: Vec<Vec<Vector3<Real>>>,
     normals: Vec<Vector3<Real>>,
     /// Each sample's place on the sampling grid (columns along `x`, rows along `y`, up).
     cells: Vec<(i64, i64)>,
@@ -1127,6 +1147,9 @@ struct Samples {
     /// Per photo and sample, its expression displacement's `(E_u, E_v)` (`[i][s]`; empty
     /// without partials or expressions).
     expression_partials: Vec<Vec<Tangents>>,
+    /// Per sample, the partial derivatives of [`Samples::photo_modes`] (`[s][l]`; empty
+    /// without expression partials).
+    photo_partials: Vec<Vec<Tangents>>,
 }
 
 /// Which partial derivatives [`Samples::new`] keeps: none (the windows), the identity
@@ -1145,7 +1168,9 @@ type Tangents = [Vector3<Real>; 2];
 impl Samples {
     /// `expressions[i]`: photo `i`'s expression as a displacement of every control point;
     /// `shifted`: further modes after the identity's, as displacements of every control point
-    /// (the expressions [`RefineOptions::expression_shift`] moves); `window_eyes` the local
+    /// (the expressions [`RefineOptions::expression_shift`] moves); `photo_shifted`: the
+    /// expressions each photo shifts on its own ([`RefineOptions::expression_photos`]), as
+    /// displacements of every control point; `window_eyes` the local
     /// normalisation's window on the surface ([`neighbours`]); `partials` which of the
     /// surfaces' partial derivatives to keep ([`Samples::partials`],
     /// [`Samples::expression_partials`]).
@@ -1155,6 +1180,7 @@ impl Samples {
         reference: &ReferenceFace,
         expressions: &[Vec<Vector3<Real>>],
         shifted: &[&[Vector3<Real>]],
+        photo_shifted: &[&[Vector3<Real>]],
         spacing: Real,
         window_eyes: Real,
         partials: Partials,
@@ -1204,6 +1230,10 @@ impl Samples {
             .iter()
             .map(|grid| basis.iter().map(|row| at(row, grid)).collect())
             .collect();
+        let photo_modes = basis
+            .iter()
+            .map(|row| photo_shifted.iter().map(|grid| at(row, grid)).collect())
+            .collect();
         let base_surface = surfaces.base();
         let normals = params
             .iter()
@@ -1220,7 +1250,7 @@ impl Samples {
             .map(|n: Vector3<Real>| if n.z < 0.0 { -n } else { n })
             .collect();
         let with_expressions = partials == Partials::WithExpressions;
-        let (partials, expression_partials) = if partials != Partials::None {
+        let (partials, expression_partials, photo_partials) = if partials != Partials::None {
             // One evaluation of the basis's derivatives per sample serves the base, every mode
             // and every photo's expression.
             let (du, dv) = (
@@ -1254,13 +1284,20 @@ impl Samples {
                 .filter(|_| with_expressions)
                 .map(|grid| (0..params.len()).map(|s| apply(s, &|c| grid[c])).collect())
                 .collect();
-            (partials, expression_partials)
+            let photo_partials = (0..params.len())
+                .into_par_iter()
+                .filter(|_| with_expressions)
+                .map(|s| photo_shifted.iter().map(|grid| apply(s, &|c| grid[c])).collect())
+                .collect();
+            (partials, expression_partials, photo_partials)
         } else {
-            (Vec::new(), Vec::new())
+            (Vec::new(), Vec::new(), Vec::new())
         };
         Ok(Samples {
             partials,
             expression_partials,
+            photo_partials,
+            photo_modes,
             base: sampled.base,
             modes,
             expression,
@@ -1276,12 +1313,18 @@ impl Samples {
         self.base.len()
     }
 
-    /// Sample `s` of photo `i`, the samples [`Samples::placed`] at a state.
-    fn point(&self, placed: &[Placed], s: usize, i: usize) -> Point3<Real> {
+    /// Sample `s` of photo `i`, the samples [`Samples::placed`] at `state`.
+    fn point(&self, placed: &[Placed], state: &State, s: usize, i: usize) -> Point3<Real> {
         let (identity, lift) = placed[s];
         let mut p = identity;
         if let Some(e) = self.expression.get(i) {
             p += e[s];
+        }
+        for (d, shift) in self.photo_modes[s]
+            .iter()
+            .zip(state.shifts.get(i).into_iter().flatten())
+        {
+            p += d * *shift;
         }
         p.z += lift;
         p
@@ -1351,8 +1394,14 @@ impl Samples {
                 let photos = self
                     .expression_partials
                     .iter()
-                    .map(|photo| {
-                        let [eu, ev] = photo[s];
+                    .enumerate()
+                    .map(|(i, photo)| {
+                        let [mut eu, mut ev] = photo[s];
+                        let shifts = state.shifts.get(i).map_or(&[][..], Vec::as_slice);
+                        for ([du, dv], shift) in self.photo_partials[s].iter().zip(shifts) {
+                            eu += du * *shift;
+                            ev += dv * *shift;
+                        }
                         let m = (fu + eu).cross(&(fv + ev));
                         let length = m.norm();
                         if length.is_nan() || length <= 1e-12 {
@@ -1697,6 +1746,9 @@ struct Landmarks<'a> {
     /// `modes[j][k]`.
     modes: Vec<Vec<Vector3<Real>>>,
     expression: Vec<Vec<Vector3<Real>>>,
+    /// `photo_modes[j][l]`: the structure's displacement by each expression the photos shift
+    /// on their own ([`Problem::photo_shifted`]).
+    photo_modes: Vec<Vec<Vector3<Real>>>,
     views: &'a [RefineView<'a>],
     point_weights: &'a [Real; POINT_COUNT],
     /// Per photo: the fixed unit `uᵢ` (its starting scale).
@@ -1708,22 +1760,34 @@ struct Landmarks<'a> {
 struct State {
     weights: Vec<Real>,
     cameras: Vec<RefinedCamera>,
+    /// Per photo, its own shift of each expression [`Problem::photo_shifted`] names
+    /// ([`RefineOptions::expression_photos`]; every photo's empty without it).
+    shifts: Vec<Vec<Real>>,
     /// The control points' depth displacements (empty without [`RefineOptions::field`]).
     field: Vec<Real>,
 }
 
 impl State {
-    /// The state moved by `step` (identity, then each camera's, then the field).
+    /// The state moved by `step`: the identity, then each photo's block (its camera's
+    /// [`CAMERA`] unknowns, then its expression shifts), then the field.
     fn moved(&self, step: &DVector<Real>) -> State {
         let k = self.weights.len();
-        let f = k + CAMERA * self.cameras.len();
+        let width = self.photo_width();
+        let f = k + width * self.cameras.len();
+        let block = |i: usize| &step.as_slice()[k + width * i..k + width * (i + 1)];
         State {
             weights: self.weights.iter().zip(step.iter()).map(|(w, d)| w + d).collect(),
             cameras: self
                 .cameras
                 .iter()
                 .enumerate()
-                .map(|(i, c)| c.moved(&step.as_slice()[k + CAMERA * i..k + CAMERA * (i + 1)]))
+                .map(|(i, c)| c.moved(&block(i)[..CAMERA]))
+                .collect(),
+            shifts: self
+                .shifts
+                .iter()
+                .enumerate()
+                .map(|(i, own)| own.iter().zip(&block(i)[CAMERA..]).map(|(a, d)| a + d).collect())
                 .collect(),
             field: self
                 .field
@@ -1734,8 +1798,18 @@ impl State {
         }
     }
 
+    /// The unknowns of each photo's block: its camera's, then its expression shifts.
+    fn photo_width(&self) -> usize {
+        CAMERA + self.shifts.first().map_or(0, Vec::len)
+    }
+
+    /// Where the field's unknowns begin: after the identity's and every photo's block.
+    fn field_start(&self) -> usize {
+        self.weights.len() + self.photo_width() * self.cameras.len()
+    }
+
     fn unknowns(&self) -> usize {
-        self.weights.len() + CAMERA * self.cameras.len() + self.field.len()
+        self.field_start() + self.field.len()
     }
 }
 
@@ -1745,11 +1819,15 @@ struct Seen {
     weight: Real,
     value: Real,
     /// `∂N/∂X`, `∂N/∂n` (the sample's normal, [`Window::Lit`]; zero for the other windows)
-    /// and `∂N/∂camera` (`∂N/∂w` is `∂N/∂X` through the sample's modes and `∂N/∂n` through
-    /// its normal's derivatives).
+    /// and `∂N` in the photo's own unknowns, its block (`∂N/∂w` is `∂N/∂X` through the
+    /// sample's modes and `∂N/∂n` through its normal's derivatives).
     d_point: Vector3<Real>,
     d_normal: Vector3<Real>,
-    d_camera: [Real; CAMERA],
+    /// `∂N/∂camera`, then `∂N/∂δᵢₗ` for the photo's own expression shifts (`∂N/∂X` through
+    /// the expression's displacement at the sample; its normal's change is left out, as the
+    /// identity's normal derivatives are shared among the photos), zero beyond the block's
+    /// width ([`State::photo_width`]).
+    d_photo: [Real; PHOTO_MAX],
 }
 
 /// The problem at one level.
@@ -1761,6 +1839,9 @@ struct Level<'a> {
     sigma_prior: &'a [Real],
     /// The range of each weight after the identity's ([`Problem::shift_limits`]).
     shift_limits: &'a [(Real, Real)],
+    /// Per photo, the range of each of its own expression shifts
+    /// ([`Problem::photo_shift_limits`]).
+    photo_shift_limits: &'a [Vec<(Real, Real)>],
     /// Each photo's `κ` prior centre ([`Problem::perspective_prior`]).
     perspective_prior: &'a [Real],
     options: &'a RefineOptions,
@@ -1838,7 +1919,7 @@ impl Level<'_> {
                 let mut seen = vec![0.0; n];
                 let mut places = Vec::with_capacity(n);
                 for (s, item) in seen.iter_mut().enumerate() {
-                    let x = self.samples.point(&placed, s, i);
+                    let x = self.samples.point(&placed, state, s, i);
                     let Some(Projected { q, p, .. }) = camera.project(&x) else {
                         places.push(None);
                         continue;
@@ -1953,7 +2034,7 @@ impl Level<'_> {
                         if visibility[i][s] <= 0.0 {
                             return None;
                         }
-                        let x = self.samples.point(placed, s, i);
+                        let x = self.samples.point(placed, state, s, i);
                         let projected = camera.project(&x)?;
                         image.sample(&image.crop_of(&projected.p)).map(|(v, _)| v)
                     })
@@ -2102,7 +2183,7 @@ impl Level<'_> {
             if c <= 0.0 {
                 continue;
             }
-            let x = self.samples.point(placed, s, i);
+            let x = self.samples.point(placed, state, s, i);
             let Some(projected) = camera.project(&x) else {
                 continue;
             };
@@ -2119,7 +2200,7 @@ impl Level<'_> {
                 d_normal,
             } = normalisation.scales[i][s];
             let (value, grad) = ((raw - mean) * inverse, raw_grad * inverse);
-            let mut d_camera = [0.0; CAMERA];
+            let mut d_photo = [0.0; PHOTO_MAX];
             let mut d_point = Vector3::zeros();
             let d_normal = d_normal * raw;
             if derivatives {
@@ -2128,7 +2209,12 @@ impl Level<'_> {
                 let dn_dx = camera.rotation.matrix().transpose() * dn_dq;
                 d_point = dn_dx;
                 let (rx, ry) = (projected.camera_row(0), projected.camera_row(1));
-                d_camera = std::array::from_fn(|t| grad.x * rx[t] + grad.y * ry[t]);
+                for (t, d) in d_photo[..CAMERA].iter_mut().enumerate() {
+                    *d = grad.x * rx[t] + grad.y * ry[t];
+                }
+                for (d, mode) in d_photo[CAMERA..].iter_mut().zip(&self.samples.photo_modes[s]) {
+                    *d = dn_dx.dot(mode);
+                }
             }
             out.push(Seen {
                 photo: i,
@@ -2136,7 +2222,7 @@ impl Level<'_> {
                 value,
                 d_point,
                 d_normal,
-                d_camera,
+                d_photo,
             });
         }
         out
@@ -2220,8 +2306,16 @@ impl Level<'_> {
             .map(|(w, s)| (w / s).powi(2))
             .sum();
         let field: Real = self.field_residuals(state).map(|r| r * r).sum();
+        let photo_sigma = self.options.expression_photos.unwrap_or(1.0);
+        let shifts: Real = state
+            .shifts
+            .iter()
+            .flatten()
+            .map(|d| (d / photo_sigma).powi(2))
+            .sum();
         identity
             + field
+            + shifts
             + state
                 .cameras
                 .iter()
@@ -2247,8 +2341,10 @@ impl Level<'_> {
     /// the loss's reweighting), with the views' weighted mean `μ = Σ sₐ Nₐ` eliminated (`sₐ` a
     /// view's share of the summed visibility): its Jacobian is its own less the mean's. With
     /// `qₐ = ∂Nₐ/∂X − Σ sᵦ ∂Nᵦ/∂X` and `Mₛ` the sample's `3 × k` mode displacements (the same
-    /// for every view), `cₐ` the view's camera Jacobian and `βₑ` the field's basis values,
-    /// every block of the sample's Gram matrix is a small closed form:
+    /// for every view), `cₐ` the view's Jacobian in its photo's block (its camera's, then its
+    /// own expression shifts': `width` unknowns per photo, [`Seen::d_photo`]) and `βₑ` the
+    /// field's basis values, every block of the sample's Gram matrix is a small closed form
+    /// ("camera" for a photo's block):
     ///
     /// ```text
     /// identity × identity   Mₛᵀ A Mₛ,                 A = Σ ρₐ qₐ qₐᵀ  (3 × 3)
@@ -2269,6 +2365,7 @@ impl Level<'_> {
     /// sample's field basis values (empty without a field), the field moving the point alone.
     fn add_sample<const D: usize>(
         modes: &[SVector<Real, D>],
+        width: usize,
         (basis, seen, (total, mean), (scale, c)): SampleTerms<'_>,
         equations: &mut Equations,
     ) {
@@ -2333,8 +2430,8 @@ impl Level<'_> {
             g[field + cp] += b[2] * value;
         }
         for (x, (view, &(share_b, rho_b, r_b, q_b))) in seen.iter().zip(&views).enumerate() {
-            let base = k + CAMERA * view.photo;
-            let camera = &view.d_camera;
+            let base = k + width * view.photo;
+            let camera = &view.d_photo[..width];
             // Identity × this camera.
             let y = q_b * rho_b - u * share_b;
             let my: Vec<Real> = modes.iter().map(|m| m.dot(&y)).collect();
@@ -2347,13 +2444,13 @@ impl Level<'_> {
             // This camera × the cameras of the views before it and itself (photos in order,
             // so their columns come first).
             for (other, &(share_o, rho_o, _, _)) in seen[..=x].iter().zip(&views) {
-                let other_base = k + CAMERA * other.photo;
+                let other_base = k + width * other.photo;
                 let coefficient = weight_sum * share_b * share_o - rho_b * share_o - rho_o * share_b;
                 let diagonal = if other.photo == view.photo { rho_b } else { 0.0 };
                 for (t, d) in camera.iter().enumerate() {
                     let column = &mut hs[(base + t) * n..(base + t + 1) * n];
-                    let rows = if other.photo == view.photo { t + 1 } else { CAMERA };
-                    for (o, od) in other.d_camera[..rows].iter().enumerate() {
+                    let rows = if other.photo == view.photo { t + 1 } else { width };
+                    for (o, od) in other.d_photo[..rows].iter().enumerate() {
                         column[other_base + o] += (coefficient + diagonal) * od * d;
                     }
                 }
@@ -2361,7 +2458,7 @@ impl Level<'_> {
             // This camera × the field.
             let cross_coefficient = rho_b * q_b[2] - share_b * u[2];
             for &(cp, value) in basis {
-                let row = &mut cross[cp * n + base..cp * n + base + CAMERA];
+                let row = &mut cross[cp * n + base..cp * n + base + width];
                 for (entry, d) in row.iter_mut().zip(camera) {
                     *entry += cross_coefficient * d * value;
                 }
@@ -2382,7 +2479,8 @@ impl Level<'_> {
         let normalisation = self.normalisers(state, &placed, visibility, true);
         let k = state.weights.len();
         let n = state.unknowns();
-        let field = k + CAMERA * state.cameras.len();
+        let field = state.field_start();
+        let width = state.photo_width();
         let bandwidth = self.field_bandwidth;
         let zeros = || Equations::zeros(field, n - field, bandwidth);
         let scale = self.options.beta / (self.options.sigma * self.options.sigma);
@@ -2410,9 +2508,9 @@ impl Level<'_> {
                                 .zip(normal_modes)
                                 .map(|(m, t)| SVector::<Real, 6>::new(m.x, m.y, m.z, t.x, t.y, t.z))
                                 .collect();
-                            Self::add_sample(&modes, terms, &mut equations);
+                            Self::add_sample(&modes, width, terms, &mut equations);
                         }
-                        None => Self::add_sample(&self.samples.modes[s], terms, &mut equations),
+                        None => Self::add_sample(&self.samples.modes[s], width, terms, &mut equations),
                     }
                 }
             }
@@ -2442,8 +2540,16 @@ impl Level<'_> {
             h[(m, m)] += 1.0 / (s * s);
             g[m] += state.weights[m] / (s * s);
         }
+        let photo_sigma = self.options.expression_photos.unwrap_or(1.0);
+        for (i, shifts) in state.shifts.iter().enumerate() {
+            for (l, shift) in shifts.iter().enumerate() {
+                let t = k + width * i + CAMERA + l;
+                equations.a[(t, t)] += 1.0 / (photo_sigma * photo_sigma);
+                equations.g[t] += shift / (photo_sigma * photo_sigma);
+            }
+        }
         for (i, camera) in state.cameras.iter().enumerate() {
-            let t = k + CAMERA * i + 6;
+            let t = k + width * i + 6;
             if self.options.perspective {
                 let centre = self.perspective_prior[i];
                 let d = 1.0 / (PERSPECTIVE_SPREAD * centre);
@@ -2454,13 +2560,18 @@ impl Level<'_> {
                 equations.hold(t);
             }
         }
-        let held_face = (0..k).chain(field..n).filter(|_| self.face_held);
+        // Holding the face holds every photo's expression shifts too: only the cameras move.
+        let held_shifts = (0..state.cameras.len()).flat_map(|i| k + width * i + CAMERA..k + width * (i + 1));
+        let held_face = (0..k)
+            .chain(held_shifts)
+            .chain(field..n)
+            .filter(|_| self.face_held);
         let held_cameras = self
             .cameras_held
             .iter()
             .enumerate()
             .filter(|(_, held)| **held)
-            .flat_map(|(i, _)| k + CAMERA * i..k + CAMERA * (i + 1));
+            .flat_map(|(i, _)| k + width * i..k + width * (i + 1));
         for t in held_face.chain(held_cameras) {
             equations.hold(t);
         }
@@ -2566,6 +2677,9 @@ impl Landmarks<'_> {
                 if let Some(e) = self.expression.get(i) {
                     x += e[j];
                 }
+                for (d, shift) in self.photo_modes[j].iter().zip(&state.shifts[i]) {
+                    x += d * *shift;
+                }
                 camera
                     .project(&x)
                     .map(|projected| ((projected.p - self.views[i].points[j]) / self.units[i], projected))
@@ -2603,13 +2717,15 @@ impl Landmarks<'_> {
         g: &mut DVector<Real>,
     ) {
         let k = state.weights.len();
+        let width = state.photo_width();
         let inv = 1.0 / (options.noise * options.noise);
-        // A residual's row is non-zero on the identity weights and its photo's camera only: its
+        // A residual's row is non-zero on the identity weights and its photo's block only: its
         // outer product goes into those four blocks alone (the rest of `H` would gain exact
         // zeros), a sixth of the whole matrix with 8 photos and less with more.
         let mut identity = DVector::<Real>::zeros(k);
+        let mut own = DVector::<Real>::zeros(width);
         for (i, camera) in state.cameras.iter().enumerate() {
-            let base = k + CAMERA * i;
+            let base = k + width * i;
             for (j, r) in self.residuals(state, i).into_iter().enumerate() {
                 let Some((r, projected)) = r else { continue };
                 let w = self.point_weights[j] * inv;
@@ -2619,14 +2735,18 @@ impl Landmarks<'_> {
                     for m in 0..k {
                         identity[m] = dx.row(a).dot(&self.modes[j][m].transpose());
                     }
-                    let own = nalgebra::SVector::<Real, CAMERA>::from(projected.camera_row(a)) / unit;
+                    for (t, d) in projected.camera_row(a).iter().enumerate() {
+                        own[t] = d / unit;
+                    }
+                    for (l, d) in self.photo_modes[j].iter().enumerate() {
+                        own[CAMERA + l] = dx.row(a).dot(&d.transpose());
+                    }
                     h.view_mut((0, 0), (k, k)).ger(w, &identity, &identity, 1.0);
-                    h.view_mut((0, base), (k, CAMERA)).ger(w, &identity, &own, 1.0);
-                    h.view_mut((base, 0), (CAMERA, k)).ger(w, &own, &identity, 1.0);
-                    h.fixed_view_mut::<CAMERA, CAMERA>(base, base)
-                        .ger(w, &own, &own, 1.0);
+                    h.view_mut((0, base), (k, width)).ger(w, &identity, &own, 1.0);
+                    h.view_mut((base, 0), (width, k)).ger(w, &own, &identity, 1.0);
+                    h.view_mut((base, base), (width, width)).ger(w, &own, &own, 1.0);
                     g.rows_mut(0, k).axpy(w * r[a], &identity, 1.0);
-                    g.fixed_rows_mut::<CAMERA>(base).axpy(w * r[a], &own, 1.0);
+                    g.rows_mut(base, width).axpy(w * r[a], &own, 1.0);
                 }
             }
         }
@@ -2723,6 +2843,12 @@ impl FaceSpace {
                     .map(|(&a, &b)| blend(a, b))
                     .collect(),
                 cameras: state.cameras,
+                shifts: start
+                    .shifts
+                    .iter()
+                    .zip(&state.shifts)
+                    .map(|(a, b)| a.iter().zip(b).map(|(&a, &b)| blend(a, b)).collect())
+                    .collect(),
                 field,
             };
             after_visibility = level.visibility(&blended);
@@ -2753,8 +2879,12 @@ impl FaceSpace {
         // The shifts (none unless every photo has the space's expressions), clamped against
         // rounding: their limits keep each weight in [0, 1].
         let mut expressions = fit.expressions.clone();
-        for e in &mut expressions {
+        for (e, own) in expressions.iter_mut().zip(&kept.shifts) {
             for (&l, shift) in problem.shifted.iter().zip(&kept.weights[identity..]) {
+                e[l] = (e[l] + shift).clamp(0.0, 1.0);
+            }
+            // Each photo's own shifts, likewise kept in [0, 1] by their limits.
+            for (&l, shift) in problem.photo_shifted.iter().zip(own) {
                 e[l] = (e[l] + shift).clamp(0.0, 1.0);
             }
         }
@@ -2891,6 +3021,11 @@ struct Problem<'a> {
     sigma_prior: Vec<Real>,
     /// Each shift's range: where no photo's weight leaves `[0, 1]`.
     shift_limits: Vec<(Real, Real)>,
+    /// The expression modes each photo shifts on its own
+    /// ([`RefineOptions::expression_photos`]).
+    photo_shifted: Vec<usize>,
+    /// Per photo, each own shift's range: where its weight stays in `[0, 1]`.
+    photo_shift_limits: Vec<Vec<(Real, Real)>>,
     /// Each photo's `κ` prior centre: its starting camera with [`TYPICAL_FOCAL`].
     perspective_prior: Vec<Real>,
     landmarks: Landmarks<'a>,
@@ -2920,9 +3055,18 @@ impl FaceSpace {
             &[]
         };
         let shifted = match options.expression_shift {
-            Some(_) if !expressions.is_empty() => shifted_expressions(expressions),
+            Some(_) if !expressions.is_empty() => shifted_expressions(expressions, SHIFTED_EXPRESSIONS_MAX),
             _ => Vec::new(),
         };
+        let photo_shifted = match options.expression_photos {
+            Some(_) if !expressions.is_empty() => shifted_expressions(expressions, PHOTO_EXPRESSIONS_MAX),
+            _ => Vec::new(),
+        };
+        let photo_shift_limits = expressions
+            .iter()
+            .filter(|_| !photo_shifted.is_empty())
+            .map(|e| photo_shifted.iter().map(|&l| (-e[l], 1.0 - e[l])).collect())
+            .collect();
         let shift_limits = shifted
             .iter()
             .map(|&l| {
@@ -2964,6 +3108,7 @@ impl FaceSpace {
                     camera
                 })
                 .collect(),
+            shifts: vec![vec![0.0; photo_shifted.len()]; fit.poses.len()],
             field: if options.field {
                 vec![0.0; self.surfaces().base().rows() * self.surfaces().base().cols()]
             } else {
@@ -2993,6 +3138,14 @@ impl FaceSpace {
                 })
                 .collect(),
             expression: displacement(&self.expressions().structure, POINT_COUNT),
+            photo_modes: (0..POINT_COUNT)
+                .map(|j| {
+                    photo_shifted
+                        .iter()
+                        .map(|&l| self.expressions().structure[l][j])
+                        .collect()
+                })
+                .collect(),
             views,
             point_weights,
             units: start.cameras.iter().map(|c| c.scale).collect(),
@@ -3003,6 +3156,8 @@ impl FaceSpace {
             shifted,
             sigma_prior,
             shift_limits,
+            photo_shifted,
+            photo_shift_limits,
             landmarks,
             expression_grids,
             boxes: face_boxes(views),
@@ -3019,16 +3174,18 @@ impl FaceSpace {
         options: &RefineOptions,
     ) -> Result<Samples, FaceError> {
         let spacing = options.spacing * coarseness(options, level_index);
-        let shifted: Vec<&[Vector3<Real>]> = problem
-            .shifted
-            .iter()
-            .map(|&l| self.expressions().grid[l].as_slice())
-            .collect();
+        let grids = |modes: &[usize]| -> Vec<&[Vector3<Real>]> {
+            modes
+                .iter()
+                .map(|&l| self.expressions().grid[l].as_slice())
+                .collect()
+        };
         Samples::new(
             self,
             reference,
             &problem.expression_grids,
-            &shifted,
+            &grids(&problem.shifted),
+            &grids(&problem.photo_shifted),
             spacing,
             options.window_eyes,
             match options.window {
@@ -3093,6 +3250,7 @@ impl FaceSpace {
             landmarks: &problem.landmarks,
             sigma_prior: &problem.sigma_prior,
             shift_limits: &problem.shift_limits,
+            photo_shift_limits: &problem.photo_shift_limits,
             perspective_prior: &problem.perspective_prior,
             options,
             field_stencils,
@@ -3202,6 +3360,14 @@ fn check_refine(
             return FaceError::option(name, v, "positive and finite");
         }
     }
+    for (name, v) in [
+        ("expression shift", options.expression_shift),
+        ("expression photos", options.expression_photos),
+    ] {
+        if let Some(v) = v.filter(|&v| !positive(v)) {
+            return FaceError::option(name, v, "positive and finite, or none");
+        }
+    }
     for (name, v) in [("min gain", options.min_gain), ("full gain", options.full_gain)] {
         if v.is_nan() {
             return FaceError::option(name, v, "a number (infinite allowed)");
@@ -3286,6 +3452,11 @@ impl Level<'_> {
                 let identity = next.weights.len() - self.shift_limits.len();
                 for (w, &(low, high)) in next.weights[identity..].iter_mut().zip(self.shift_limits) {
                     *w = w.clamp(low, high);
+                }
+                for (shifts, limits) in next.shifts.iter_mut().zip(self.photo_shift_limits) {
+                    for (d, &(low, high)) in shifts.iter_mut().zip(limits) {
+                        *d = d.clamp(low, high);
+                    }
                 }
                 let next_cost = self.cost(&next, &visibility);
                 if next_cost.is_finite() && next_cost < cost {
@@ -3443,17 +3614,22 @@ mod tests {
     /// camera, the field) and the sum of their outer products, with the views' photos not
     /// consecutive and the field's control points out of order; for the point alone and for
     /// the point and the normal ([`Window::Lit`]).
+    /// Each photo's block is its camera's alone, or widened by its own expression shifts
+    /// ([`RefineOptions::expression_photos`]; the views' derivatives beyond the block's width
+    /// must be ignored).
     #[test]
     fn sample_blocks_equal_the_rows_gram_matrix() {
-        sample_blocks::<3>();
-        sample_blocks::<6>();
+        for width in [CAMERA, CAMERA + 2, PHOTO_MAX] {
+            sample_blocks::<3>(width);
+            sample_blocks::<6>(width);
+        }
     }
 
-    fn sample_blocks<const D: usize>() {
+    fn sample_blocks<const D: usize>(width: usize) {
         let value = |i: usize| ((i * 7919 + 13) % 1009) as Real / 1009.0 - 0.5;
         let k = 5;
         let photos = 4;
-        let field = k + CAMERA * photos;
+        let field = k + width * photos;
         let n = field + 6;
         let modes: Vec<SVector<Real, D>> = (0..k)
             .map(|m| SVector::from_fn(|r, _| value(D * m + r)))
@@ -3468,13 +3644,18 @@ mod tests {
                 value: value(100 + x),
                 d_point: Vector3::new(value(200 + x), value(300 + x), value(400 + x)),
                 d_normal: Vector3::new(value(600 + x), value(700 + x), value(800 + x)),
-                d_camera: std::array::from_fn(|t| value(500 + 10 * x + t)),
+                d_photo: std::array::from_fn(|t| value(500 + 20 * x + t)),
             })
             .collect();
         let (total, mean) = agreement(&seen).expect("three views");
         let (scale, c) = (0.7, 1.1);
         let mut equations = Equations::zeros(field, n - field, 3);
-        Level::add_sample(&modes, (&basis, &seen, (total, mean), (scale, c)), &mut equations);
+        Level::add_sample(
+            &modes,
+            width,
+            (&basis, &seen, (total, mean), (scale, c)),
+            &mut equations,
+        );
         let (h, g) = (equations.to_dense(), equations.g);
 
         let mut expected_h = DMatrix::<Real>::zeros(n, n);
@@ -3501,9 +3682,9 @@ mod tests {
                 row[m] = root * q.dot(mode);
             }
             for (b, u) in seen.iter().enumerate() {
-                for t in 0..CAMERA {
-                    let own = if b == at { v.d_camera[t] } else { 0.0 };
-                    row[k + CAMERA * u.photo + t] = root * (own - u.weight / total * u.d_camera[t]);
+                for t in 0..width {
+                    let own = if b == at { v.d_photo[t] } else { 0.0 };
+                    row[k + width * u.photo + t] = root * (own - u.weight / total * u.d_photo[t]);
                 }
             }
             for &(cp, beta) in &basis {
@@ -3543,6 +3724,7 @@ mod tests {
             &reference,
             &[],
             &[],
+            &[],
             12.0,
             NORMALISATION_EYES,
             Partials::WithExpressions,
@@ -3552,6 +3734,7 @@ mod tests {
         let state = |weights: Vec<Real>| State {
             weights,
             cameras: Vec::new(),
+            shifts: Vec::new(),
             field: Vec::new(),
         };
         let at_zero = samples.shape_normals(&state(vec![0.0; k]), true).identity;
@@ -3596,6 +3779,7 @@ mod tests {
             &reference,
             &expressions,
             &[],
+            &[],
             12.0,
             NORMALISATION_EYES,
             Partials::WithExpressions,
@@ -3623,6 +3807,7 @@ mod tests {
             &reference,
             &[],
             &[&space.surfaces().modes()[3]],
+            &[],
             12.0,
             NORMALISATION_EYES,
             Partials::Identity,
@@ -3645,6 +3830,35 @@ mod tests {
             assert!((na[s].0 - nb[s].0).norm() < 1e-9);
             assert!((na[s].1[k] - nb[s].1[3]).norm() < 1e-9);
         }
+
+        // A photo's own shift of a mode that is mode 3's displacement
+        // ([`RefineOptions::expression_photos`]): that photo's points and normals are those
+        // of mode 3 moved by the shift; the other photo's and the identity's stay.
+        let zero = vec![Vector3::zeros(); space.surfaces().modes()[3].len()];
+        let own = Samples::new(
+            &space,
+            &reference,
+            &[zero.clone(), zero],
+            &[],
+            &[&space.surfaces().modes()[3]],
+            12.0,
+            NORMALISATION_EYES,
+            Partials::WithExpressions,
+        )
+        .unwrap();
+        let shifted_state = State {
+            shifts: vec![vec![sigma], vec![0.0]],
+            ..state(weights.clone())
+        };
+        let placed = own.placed(&shifted_state);
+        let shaped = own.shape_normals(&shifted_state, true);
+        for s in 0..samples.len() {
+            assert!((own.point(&placed, &shifted_state, s, 0) - b[s].0).norm() < 1e-9);
+            assert!((own.point(&placed, &shifted_state, s, 1) - placed[s].0).norm() < 1e-12);
+            assert!((shaped.photos[0][s] - nb[s].0).norm() < 1e-9);
+            assert!((shaped.photos[1][s] - normals[s].0).norm() < 1e-9);
+            assert!((shaped.identity[s].0 - normals[s].0).norm() < 1e-12);
+        }
     }
 
     /// The shifted expressions are those strong enough on average, the strongest first when
@@ -3652,11 +3866,15 @@ mod tests {
     #[test]
     fn shifted_expressions_are_the_strong_ones() {
         let photos = [vec![0.0, 0.2, 0.04, 0.5], vec![0.0, 0.0, 0.08, 0.7]];
-        assert_eq!(shifted_expressions(&photos), vec![1, 2, 3]);
+        assert_eq!(
+            shifted_expressions(&photos, SHIFTED_EXPRESSIONS_MAX),
+            vec![1, 2, 3]
+        );
+        assert_eq!(shifted_expressions(&photos, 2), vec![1, 3]);
         let many: Vec<Vec<Real>> = vec![(0..20).map(|l| 0.1 + l as Real * 0.01).collect()];
-        let chosen = shifted_expressions(&many);
+        let chosen = shifted_expressions(&many, SHIFTED_EXPRESSIONS_MAX);
         assert_eq!(chosen, (20 - SHIFTED_EXPRESSIONS_MAX..20).collect::<Vec<_>>());
-        assert!(shifted_expressions(&[]).is_empty());
+        assert!(shifted_expressions(&[], SHIFTED_EXPRESSIONS_MAX).is_empty());
     }
 
     /// The folds deal the photos out in order of yaw: every fold holds out photos from both

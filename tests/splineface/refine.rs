@@ -75,6 +75,12 @@ fn bump(p: &Point3<Real>, height: Real) -> Real {
 /// As [`scene`], the member's surface raised by `height` units in a round bump on its left
 /// cheek (outside what the space can express).
 fn scene_with_bump(truth_sigmas: &[Real], height: Real) -> Scene {
+    scene_with(truth_sigmas, height, &[])
+}
+
+/// As [`scene_with_bump`], each photo showing the member with its own expression weights
+/// (`expressions[i]` for photo `i`, one per expression mode; none: every photo neutral).
+fn scene_with(truth_sigmas: &[Real], height: Real, expressions: &[Vec<Real>]) -> Scene {
     let reference = ReferenceFace::embedded();
     let seen = reference.as_seen_in_photos().into_owned();
     let space = seen
@@ -83,32 +89,41 @@ fn scene_with_bump(truth_sigmas: &[Real], height: Real) -> Scene {
     let truth: Vec<Real> = (0..space.mode_count())
         .map(|k| truth_sigmas.get(k).copied().unwrap_or(0.0) * space.sigma()[k])
         .collect();
-    let face = space.face(&seen, &truth).unwrap();
-    let clipped = face.mesh(&MeshOptions::default()).unwrap();
-    let triangles = clipped.mesh.triangles().to_vec();
-    let positions = clipped
-        .mesh
-        .positions()
-        .iter()
-        .map(|p| p + Vector3::z() * bump(p, height))
-        .collect();
-    let mesh = TriangleMesh::new(positions, triangles.clone())
-        .unwrap()
-        .with_texture(TextureCoordinates {
-            uvs: clipped.params.clone(),
-            triangles,
-        })
-        .unwrap();
+    let mesh_with = |expression: &[Real]| {
+        let face = space.face_with_expression(&seen, &truth, expression).unwrap();
+        let clipped = face.mesh(&MeshOptions::default()).unwrap();
+        let triangles = clipped.mesh.triangles().to_vec();
+        let positions = clipped
+            .mesh
+            .positions()
+            .iter()
+            .map(|p| p + Vector3::z() * bump(p, height))
+            .collect();
+        TriangleMesh::new(positions, triangles.clone())
+            .unwrap()
+            .with_texture(TextureCoordinates {
+                uvs: clipped.params.clone(),
+                triangles,
+            })
+            .unwrap()
+    };
+    let neutral = mesh_with(&[]);
     let map = ColourMap::new(&texture(7));
-    let structure = space.structure(&truth).unwrap();
     let mut rng = Lcg(11);
     let mut images = Vec::new();
     let mut views = Vec::new();
-    for (yaw, light) in [
+    for (i, (yaw, light)) in [
         (-25.0, [0.4, 0.3, 1.0]),
         (0.0, [-0.3, 0.5, 1.0]),
         (25.0, [0.0, -0.2, 1.0]),
-    ] {
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let expression = expressions.get(i).map_or(&[][..], Vec::as_slice);
+        let expressive = (!expression.is_empty()).then(|| mesh_with(expression));
+        let mesh = expressive.as_ref().unwrap_or(&neutral);
+        let structure = space.structure_with_expression(&truth, expression).unwrap();
         let camera = Camera::looking_at_head(
             [yaw, 4.0, 2.0],
             &Point3::new(0.0, -20.0, 10.0),
@@ -125,7 +140,7 @@ fn scene_with_bump(truth_sigmas: &[Real], height: Real) -> Scene {
             supersampling: 2,
             ..PhotoLook::default()
         };
-        let photo = render_photo(&mesh, &map, &camera, &lighting, &look).unwrap();
+        let photo = render_photo(mesh, &map, &camera, &lighting, &look).unwrap();
         images.push(GreyImage::from_dynamic(&image::DynamicImage::ImageRgb8(photo)).unwrap());
         let points: Vec<Point2<Real>> = structure
             .iter()
@@ -662,4 +677,49 @@ fn under_the_lit_measure_a_photos_weight_leaves_its_light_alone() {
         "weighted {weighted:.3?} against unweighted {plain:.3?}"
     );
     assert!(weighted.iter().all(|&d| d < 1.6), "{weighted:.3?}");
+}
+
+/// Each photo's own expression shift ([`RefineOptions::expression_photos`]) takes up an
+/// expression the landmark fit under-read. The middle of three photos opens the jaw (0.5) and
+/// the fit the refinement starts from gives it half of that: refined with the shifts, that
+/// photo's jaw comes most of the way to the truth and the neutral photos' stay near closed;
+/// without them every photo keeps the fit's expression.
+#[test]
+fn each_photos_own_shift_takes_up_the_expression_its_pixels_show() {
+    let probe = scene(&[]);
+    let names = probe.space.expressions().names.clone();
+    let jaw = names
+        .iter()
+        .position(|n| n == "jawOpen")
+        .expect("the space opens its jaw");
+    let photo = |i: usize, weight: Real| {
+        let mut e = vec![vec![0.0; names.len()]; 3];
+        e[i][jaw] = weight;
+        e
+    };
+    let scene = scene_with(&[1.0, -1.0, 0.5, 1.0, -0.5], 0.0, &photo(1, 0.5));
+    let (weights, mut fit, views) = landmark_fit(&scene);
+    fit.expressions = photo(1, 0.25);
+    fit.expression_names = names;
+    let refine = |expression_photos| {
+        let options = RefineOptions {
+            expression_photos,
+            ..RefineOptions::default()
+        };
+        scene
+            .space
+            .refine_photos(scene.reference, &fit, &views, &weights, &options)
+            .unwrap()
+    };
+    let held = refine(None);
+    assert_eq!(held.expressions, fit.expressions);
+    let shifted = refine(Some(0.5));
+    let found: Vec<Real> = shifted.expressions.iter().map(|e| e[jaw]).collect();
+    eprintln!(
+        "jaw weights found {found:.3?} (truth 0, 0.5, 0); accepted {}",
+        shifted.accepted
+    );
+    assert!(shifted.accepted, "{}", shifted.note);
+    assert!((found[1] - 0.5).abs() < 0.1, "the open jaw: {found:.3?}");
+    assert!(found[0] < 0.1 && found[2] < 0.1, "the closed jaws: {found:.3?}");
 }

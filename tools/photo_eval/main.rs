@@ -1845,6 +1845,18 @@ fn methods(names: &[String]) -> Result<Vec<Method>> {
             "refine shift 1",
             refined_with(&|o| o.expression_shift = Some(1.0)),
         ),
+        method(
+            "refine photo expressions 0.25",
+            refined_with(&|o| o.expression_photos = Some(0.25)),
+        ),
+        method(
+            "refine photo expressions 0.5",
+            refined_with(&|o| o.expression_photos = Some(0.5)),
+        ),
+        method(
+            "refine photo expressions 1",
+            refined_with(&|o| o.expression_photos = Some(1.0)),
+        ),
         method("refine photo weights", refined_with(&|o| o.photo_weights = true)),
         method(
             "refine ungated",
