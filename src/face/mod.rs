@@ -39,8 +39,8 @@ use crate::structure::POINT_COUNT;
 
 pub use outline::OUTLINE_POINTS;
 pub use refine::{
-    ConsistencyMap, Look, NORMALISATION_EYES, RefineOptions, RefineView, RefinedCamera, Refinement,
-    SHIFTED_EXPRESSION_MIN, SHIFTED_EXPRESSIONS_MAX, TYPICAL_FOCAL, Window,
+    ConsistencyMap, Look, NORMALISATION_EYES, PHOTO_EXPRESSIONS_MAX, RefineOptions, RefineView,
+    RefinedCamera, Refinement, SHIFTED_EXPRESSION_MIN, SHIFTED_EXPRESSIONS_MAX, TYPICAL_FOCAL, Window,
 };
 pub use space::{
     DenseFitOptions, ExpressionPrior, FaceSpace, LIP_WEIGHT, LipGaps, PLAUSIBLE_SIGMAS, PhotoFitOptions,

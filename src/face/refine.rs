@@ -373,8 +373,33 @@ pub struct RefineOptions {
     /// the strongest) move in each photo on its own: photo `i`'s weight `eᵢₗ` by `δᵢₗ`,
     /// costing `δᵢₗ² / τₑ²` and held in `[0, 1]`. The photos' pixels then tell each photo's
     /// expression by how the photo disagrees with the others, and the landmarks move with it.
-    /// Each shift is a photo's unknown beside its camera's ([`Level::add_sample`]): the
-    /// equations' per-photo blocks widen from 7 to up to 11.
+    /// Each shift is a photo's unknown beside its camera's: the equations' per-photo blocks
+    /// widen from 7 to up to 11.
+    ///
+    /// Off by default: where one photo's expression differs from the others' it finds it (a
+    /// photo opening its jaw to 0.5 among neutral ones, started at 0.25, comes out at 0.505;
+    /// the test `each_photos_own_shift_takes_up_the_expression_its_pixels_show`), but where
+    /// the photos share their expression, as in the evaluation's expressive sets, the shifts
+    /// move together and the pixels tell them from identity no better than the shared shift
+    /// does. Measured by `tools/photo_eval` (`--expressions --seeds 2 --counts 3,8 --methods
+    /// "default,refine photo expressions 0.25,refine photo expressions 0.5,refine photo
+    /// expressions 1"`: the error from expressive photos over that from neutral ones, 3 / 8
+    /// photos, and the neutral photos' ratio to the mean face; `--baseline
+    /// tools/results/photos.md --methods "refine photo expressions 1,refine photo expressions
+    /// 0.5"`: the 105 sets' mean ratio to the mean face, the sets more than 2% worse than the
+    /// landmark fit, the real scan's 15 sets and its `photos-8` and `photos-3`):
+    ///
+    /// | `τₑ` | smile | jaw open | neutral | 105 sets | worse | the scan | `photos-8` / `-3` |
+    /// |---|---|---|---|---|---|---|---|
+    /// | **`None`** | 1.11 / 1.22 | 1.08 / 1.19 | 0.70 / 0.57 | 0.695 | 4 | 0.834 | 0.83 / 0.78 |
+    /// | 0.25 | 1.12 / 1.21 | 1.05 / 1.17 | 0.70 / 0.58 | | | | |
+    /// | 0.5 | 1.09 / 1.15 | 1.10 / 1.18 | 0.70 / 0.58 | 0.697 | 5 | 0.828 | 0.89 / 0.74 |
+    /// | 1 | 1.09 / 1.09 | 1.06 / 1.18 | 0.70 / 0.58 | 0.707 | 2 | 0.827 | 0.92 / 0.73 |
+    ///
+    /// A smile comes back part of the way, as with the shared shift; an open jaw does not
+    /// (dlib reads less of it than the points move, [`crate::face::ExpressionPrior`], and the
+    /// landmarks hold each photo's shift as they hold the fit). The real scan's sets gain a
+    /// little on average but its `photos-8` loses 0.06–0.09, and the 105 sets lose on average.
     pub expression_photos: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements

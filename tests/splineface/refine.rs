@@ -528,6 +528,11 @@ fn refinement_refuses_views_that_do_not_match_the_fit_and_bad_options() {
         (with(|o| o.field_levels = 0), "field levels"),
         (with(|o| o.field_bend = Real::INFINITY), "field bend"),
         (with(|o| o.field_sigma = -2.0), "field sigma"),
+        (with(|o| o.expression_shift = Some(0.0)), "expression shift"),
+        (
+            with(|o| o.expression_photos = Some(Real::NAN)),
+            "expression photos",
+        ),
     ] {
         match refine(&views, &options) {
             Err(FaceError::Option { name: got, .. }) => assert_eq!(got, name),
