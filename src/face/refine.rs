@@ -400,6 +400,15 @@ pub struct RefineOptions {
     /// (dlib reads less of it than the points move, [`crate::face::ExpressionPrior`], and the
     /// landmarks hold each photo's shift as they hold the fit). The real scan's sets gain a
     /// little on average but its `photos-8` loses 0.06–0.09, and the 105 sets lose on average.
+    ///
+    /// That the landmarks hold the open jaw was measured with two temporary switches (the same
+    /// expressive sets; smile and jaw open, 3 / 8 photos): with the landmarks blind to the
+    /// shifts (they see each photo's expression at the fit's), `τₑ` 0.5 gives the open jaw
+    /// 1.02 / 1.10 and 1 gives 1.07 / 1.11, but the smile 1.21 / 1.26 and 1.22 / 1.30; with the
+    /// landmarks seeing the shifts at half their size, 1.15 / 1.21 and 1.08 / 1.12 (`τₑ` 0.5),
+    /// 1.13 / 1.18 and 1.09 / 1.16 (1). The landmarks hold back an open jaw and keep a smile on
+    /// course; which to trust for which expression is more than two rendered expressions can
+    /// say.
     pub expression_photos: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements
