@@ -1251,6 +1251,7 @@ fn expressions(
     // errors[method][variant][count index]: (ratio to the mean face, error mm) per set.
     let mut table = String::new();
     let mut paired = String::new();
+    let mut found_table = String::new();
     // oracles[variant][count index], with the first method's sets (`--expression-oracle`).
     let mut oracles: Vec<Vec<Vec<Oracle>>> = (0..variants.len())
         .map(|_| args.counts.iter().map(|_| Vec::new()).collect())
@@ -1258,6 +1259,9 @@ fn expressions(
     for (m, method) in methods.iter().enumerate() {
         let chosen_reference = method.reference(reference, args.space_modes)?;
         let mut errors: Vec<Vec<Vec<Real>>> = vec![vec![Vec::new(); args.counts.len()]; variants.len()];
+        // found[variant][count index]: per set, the mean weight the output gives the truth's
+        // blendshapes (the refinement's, where it moves them).
+        let mut found: Vec<Vec<Vec<Real>>> = vec![vec![Vec::new(); args.counts.len()]; variants.len()];
         let mut baselines: Vec<Real> = Vec::new();
         for (k, row) in subjects.iter().enumerate() {
             let baseline = score(&mean_face.mesh, &mean_face.structure, &row[0])?
@@ -1294,9 +1298,14 @@ fn expressions(
                                 oracles[v][c].push(o);
                             }
                         }
-                        let (outcome, _) =
+                        let (outcome, result) =
                             run_set(&set, subject, landmarks, &chosen_reference, &method.options)?;
                         errors[v][c].push(outcome.score.map_or(Real::NAN, |s| s.distance.mean / baseline));
+                        if v > 0
+                            && let Some(fit) = result.as_ref().and_then(|r| r.space.as_ref())
+                        {
+                            found[v][c].extend(expression_found(fit, EXPRESSIONS[v - 1].1));
+                        }
                     }
                 }
             }
@@ -1316,6 +1325,13 @@ fn expressions(
             }
         }
         writeln!(paired)?;
+        for (v, (name, truth)) in EXPRESSIONS.iter().enumerate() {
+            write!(found_table, "| {} | {name} ({:.2}) |", method.name, truth[0].1)?;
+            for per_count in &found[v + 1] {
+                write!(found_table, " {:.2} |", mean_of(per_count.iter().copied()))?;
+            }
+            writeln!(found_table)?;
+        }
         eprintln!("{}: done ({:.0} s)", method.name, started.elapsed().as_secs_f64());
     }
     let counts: Vec<String> = args.counts.iter().map(|c| format!("{c} photos")).collect();
@@ -1335,7 +1351,11 @@ fn expressions(
          ## Mean ratio to the mean face\n\n\
          | method | photos of | {} |\n|---|---|{}\n{table}\n\
          ## Expressive against neutral photos: mean over sets of error(expressive) / error(neutral)\n\n\
-         | method | {} |\n|---|{}\n{paired}{oracle}",
+         | method | {} |\n|---|{}\n{paired}\n\
+         ## The expression each method ends with\n\n\
+         The mean over sets and photos of the weight the output gives the expression's blendshapes (the \
+         refinement's where it moves them, else the landmark fit's; the truth in brackets).\n\n\
+         | method | expression | {} |\n|---|---|{}\n{found_table}{oracle}",
         command_line(),
         started.elapsed().as_secs_f64(),
         args.ict_subjects,
@@ -1354,6 +1374,8 @@ fn expressions(
             .collect::<Vec<_>>()
             .join(" | "),
         "---|".repeat(counts.len() * (variants.len() - 1)),
+        counts.join(" | "),
+        "---|".repeat(counts.len()),
     );
     let path = args.out.join("expressions.md");
     std::fs::write(&path, page)?;
@@ -1545,24 +1567,30 @@ fn expression_oracle(
     let scored = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| {
         scored_member(reference, &landmark_only, subject, baseline, w, displacement)
     };
-    let modes: Vec<usize> = truth
-        .iter()
-        .filter_map(|t| fit.expression_names.iter().position(|n| n == t.0))
-        .collect();
-    let found = (!modes.is_empty()).then(|| {
-        let sum: Real = fit
-            .expressions
-            .iter()
-            .flat_map(|e| modes.iter().map(|&l| e[l]))
-            .sum();
-        sum / (modes.len() * fit.expressions.len()) as Real
-    });
+    let found = expression_found(fit, truth);
     Ok(Some(Oracle {
         landmark_fit: scored(&fit.weights, &[])?,
         refined: scored(&refined.weights, &refined.displacement)?,
         refined_true_expression: scored(&oracle.weights, &oracle.displacement)?,
         found,
     }))
+}
+
+/// The mean weight `fit` gives the blendshapes of the expression `truth` over its photos, or
+/// `None` when the truth is neutral or the fit has none of its blendshapes.
+fn expression_found(fit: &PhotoSpaceFit, truth: &[(&str, Real)]) -> Option<Real> {
+    let modes: Vec<usize> = truth
+        .iter()
+        .filter_map(|t| fit.expression_names.iter().position(|n| n == t.0))
+        .collect();
+    (!modes.is_empty() && !fit.expressions.is_empty()).then(|| {
+        let sum: Real = fit
+            .expressions
+            .iter()
+            .flat_map(|e| modes.iter().map(|&l| e[l]))
+            .sum();
+        sum / (modes.len() * fit.expressions.len()) as Real
+    })
 }
 
 /// The methods compared: the default first, then one change from it each.
