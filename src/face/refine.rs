@@ -409,6 +409,11 @@ pub struct RefineOptions {
     /// 1.13 / 1.18 and 1.09 / 1.16 (1). The landmarks hold back an open jaw and keep a smile on
     /// course; which to trust for which expression is more than two rendered expressions can
     /// say.
+    ///
+    /// All of the above was measured with the rendered open mouths lip-coloured inside. With
+    /// them dark, as in photos (`tools/results/expressions.md`), `τₑ = 1` gives smile 1.11 /
+    /// 1.10 and jaw open 1.02 / 1.12 against the default's 1.15 / 1.20 and 1.06 / 1.19, and the
+    /// shared shift of 1 gives 1.12 / 1.07 and 1.05 / 1.14.
     pub expression_photos: Option<Real>,
     /// How far the landmarks' weighted RMS may grow (canonical units) for the refinement to be
     /// kept. Unbounded by default: on `tools/photo_eval` it grew by up to 0.6 units on refinements

@@ -741,8 +741,9 @@ pub struct PhotoFitOptions {
 /// reading more into a closed mouth's gaps than the mean face has, it fits the neutral photos'
 /// mouths open and their faces worse. Reading the gaps at dlib's gain and offset (the last row)
 /// brings the neutral back part of the way and the jaw no further. The rendered subjects'
-/// mouths have nothing inside them; a real open mouth (teeth, a dark inside) may be read
-/// otherwise, which these photos cannot say.
+/// open mouths were lip-coloured inside then (they are dark since, as in photos, and dlib
+/// reads a little more of an open jaw: 0.22 / 0.23 of 0.35 against 0.20 / 0.19 without the
+/// gaps); a real open mouth (teeth, a dark inside) may be read otherwise still.
 ///
 /// On the main evaluation (`tools/photo_eval --methods lips` against the committed
 /// `tools/results/photos.md`, 105 sets; mean ratio to the mean face for 2 / 3 / 4 / 8 / 16

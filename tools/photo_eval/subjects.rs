@@ -106,9 +106,20 @@ pub struct Skin {
 /// The ICT mesh's openings (eyes, mouth) closed by fans about a centre set back by `depth` cm,
 /// and the outer boundary left open: returns the closing triangles and their new vertices.
 struct Openings {
-    /// Each opening: its boundary loop (vertex indices) and how far back its centre sits (cm).
-    loops: Vec<(Vec<u32>, Real)>,
+    /// Each opening: its boundary loop (vertex indices), how far back its centre sits (cm) and
+    /// whether it is the mouth.
+    loops: Vec<(Vec<u32>, Real, bool)>,
 }
+
+/// The side of the block of texels in a skin's top-left corner (outside the ICT mesh's
+/// texture chart) that holds the inside of the mouth.
+const MOUTH_TEXELS: u32 = 8;
+
+/// The inside of the mouth, sRGB: dark and reddish, as a mouth's inside is in photos (its
+/// cavity then shades it darker still). Before, the fan closing the mouth took the lips'
+/// colours, so that an open jaw showed a lip-coloured funnel that no landmarker sees in real
+/// photos.
+const MOUTH_COLOUR: [u8; 3] = [52, 24, 24];
 
 fn boundary_loops(mesh: &TriangleMesh) -> Vec<Vec<u32>> {
     use std::collections::HashMap;
@@ -163,15 +174,16 @@ impl Openings {
             .map(|l| {
                 let y = l.iter().map(|&v| neutral.positions()[v as usize].y).sum::<Real>() / l.len() as Real;
                 // Eyes (above the nose) sit 0.5 cm back, the mouth 1 cm.
-                (l, if y > 0.0 { 0.5 } else { 1.0 })
+                if y > 0.0 { (l, 0.5, false) } else { (l, 1.0, true) }
             })
             .collect();
         Openings { loops }
     }
 
     /// The mesh with its openings closed: one centre vertex per opening (the loop's mean,
-    /// moved back along `−z`), its texture coordinate the loop's mean.
-    fn close(&self, mesh: &TriangleMesh, depth_scale: Real) -> Result<TriangleMesh> {
+    /// moved back along `−z`), its texture coordinate the loop's mean; the mouth's fan takes
+    /// the skin's mouth texels ([`MOUTH_TEXELS`]) instead, all over.
+    fn close(&self, mesh: &TriangleMesh, depth_scale: Real, skin_side: u32) -> Result<TriangleMesh> {
         let texture = mesh.texture().context("no texture coordinates")?;
         let mut positions = mesh.positions().to_vec();
         let mut triangles = mesh.triangles().to_vec();
@@ -184,7 +196,11 @@ impl Openings {
                 uv_of[t[k] as usize] = u[k];
             }
         }
-        for (lp, depth) in &self.loops {
+        // The centre of the skins' mouth texels (`v` up from the image's bottom row).
+        let mouth_uv = uvs.len() as u32;
+        let corner = Real::from(MOUTH_TEXELS) / 2.0 / Real::from(skin_side);
+        uvs.push(Point2::new(corner, 1.0 - corner));
+        for (lp, depth, mouth) in &self.loops {
             let n = lp.len() as Real;
             let centre = lp
                 .iter()
@@ -203,7 +219,11 @@ impl Openings {
             for k in 0..lp.len() {
                 let (a, b) = (lp[k], lp[(k + 1) % lp.len()]);
                 triangles.push([a, b, c]);
-                uv_triangles.push([uv_of[a as usize], uv_of[b as usize], cu]);
+                uv_triangles.push(if *mouth {
+                    [mouth_uv; 3]
+                } else {
+                    [uv_of[a as usize], uv_of[b as usize], cu]
+                });
             }
         }
         Ok(
@@ -393,6 +413,15 @@ pub fn skin_from_photo(
             *p = mean;
         }
     }
+    // The inside of the mouth ([`Openings::close`]), in a corner no triangle covers.
+    for ty in 0..MOUTH_TEXELS {
+        for tx in 0..MOUTH_TEXELS {
+            if filled[(ty * size + tx) as usize] {
+                bail!("the skin's corner texels, kept for the inside of the mouth, are covered");
+            }
+            image.put_pixel(tx, ty, image::Rgb(MOUTH_COLOUR));
+        }
+    }
     Ok(Skin {
         name: name.to_owned(),
         colour: ColourMap::new(&image),
@@ -483,7 +512,7 @@ fn ict_face_with_expression(
     let textured = truth
         .clone()
         .with_texture(ict.neutral.texture().context("ICT texture coordinates")?.clone())?;
-    let mesh = Openings::of(&ict.neutral).close(&textured, 10.0)?;
+    let mesh = Openings::of(&ict.neutral).close(&textured, 10.0, skin.image.width())?;
     let ibug: Vec<Point3<Real>> = ict.landmarks.iter().map(|&v| truth.positions()[v]).collect();
     let structure = from_ibug68(&ibug)?;
     Ok(Subject {
