@@ -810,8 +810,12 @@ pub type LipGaps = [Vector2<Real>; 3];
 ///   blendshapes share the smile out (their weights summing to 10–14 at ε = 4). A shared
 ///   expression is told from identity only by the priors: the identity modes and the other
 ///   blendshapes explain the 40 points about as cheaply. From dlib's points on rendered
-///   photos the open jaw comes out at 0.20 (`tools/results/expressions.md`): dlib reads less
-///   of it than the points move.
+///   photos the open jaw comes out at 0.22 / 0.23 for 3 / 8 photos and the smile at
+///   0.37 / 0.39 (`tools/results/expressions.md`). From the truth's own 68 points projected
+///   into the same photos (`photo_eval --expressions --projected-landmarks`, the whole path
+///   otherwise unchanged) they come out at 0.19 / 0.20 and 0.44 / 0.48: the open jaw's
+///   shortfall is the fit's, not the landmarker's (a per-expression gain of the landmarker
+///   would not find it), while dlib reads about 0.8 of the smile that the points show.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExpressionPrior {
     /// `τ`, each photo's deviation from the shared expression.

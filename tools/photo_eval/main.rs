@@ -12,8 +12,11 @@
 //!
 //! Run: `cargo run --release --example photo_eval -- [--quick] [--ict-subjects N] [--seeds N]
 //! [--out DIR] [--model PATH] [--space-modes K] [--signed-maps DIR] [--from-truth]
-//! [--flat-light] [--windows KEYS] [--expressions [--expression-oracle]] [--baseline PAGE]`; writes `DIR/photos.md` and pictures (default DIR
+//! [--flat-light] [--windows KEYS] [--expressions [--expression-oracle]] [--baseline PAGE]
+//! [--projected-landmarks]`; writes `DIR/photos.md` and pictures (default DIR
 //! `target/photo-eval`; the committed page is `tools/results/photos.md`).
+//! `--projected-landmarks` hands every method the truth's 68 points projected into each
+//! photo (those of the face the camera sees, an expression's included) instead of dlib's.
 
 mod baseline;
 #[path = "../common/mod.rs"]
@@ -72,6 +75,9 @@ struct Args {
     expression_oracle: bool,
     /// `--baseline`: an earlier run's page to set this run's methods against, set by set.
     baseline: Option<PathBuf>,
+    /// `--projected-landmarks`: every photo's landmarks are the truth's 68 points projected
+    /// (those of the face the camera sees), not the landmarker's.
+    projected_landmarks: bool,
 }
 
 fn parse_args() -> Result<Args> {
@@ -97,6 +103,7 @@ fn parse_args() -> Result<Args> {
         windows: Vec::new(),
         expression_oracle: false,
         baseline: None,
+        projected_landmarks: false,
     };
     let mut it = std::env::args().skip(1);
     while let Some(flag) = it.next() {
@@ -126,6 +133,7 @@ fn parse_args() -> Result<Args> {
             "--flat-light" => args.flat_light = true,
             "--windows" => args.windows = value()?.split(',').map(|m| m.trim().to_owned()).collect(),
             "--baseline" => args.baseline = Some(value()?.into()),
+            "--projected-landmarks" => args.projected_landmarks = true,
             other => bail!("unknown argument {other}"),
         }
     }
@@ -2027,7 +2035,7 @@ fn main() -> Result<()> {
 
     let mut landmarks = Landmarks {
         model: &model,
-        projected: false,
+        projected: args.projected_landmarks,
         found: HashMap::new(),
     };
     let baselines: Vec<InnerFaceScore> = subjects

@@ -29,7 +29,8 @@ pub struct Subject {
     /// What a reconstruction is scored against (millimetres, same frame).
     pub truth: TriangleMesh,
     pub structure: Vec<Point3<Real>>,
-    /// The 68 truth landmarks (millimetres).
+    /// The 68 landmarks of the face the camera sees (millimetres; with an expression, the
+    /// expressive face's).
     pub ibug: Vec<Point3<Real>>,
     /// The point cameras aim at (the middle of the face).
     pub target: Point3<Real>,
@@ -486,10 +487,11 @@ pub fn ict_subject_with_expression(
         expression.1,
         skin,
     )?;
+    // The truth is neutral; the 68 points (projected into the photos' records) are those of
+    // the face the camera sees.
     Ok(Subject {
         truth: neutral.truth,
         structure: neutral.structure,
-        ibug: neutral.ibug,
         ..posed
     })
 }
