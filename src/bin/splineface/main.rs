@@ -476,6 +476,11 @@ fn reconstruct_command(a: &ReconstructArgs) -> Result<()> {
     let options = output.options()?;
     check_output_dir(out)?;
     let model_start = std::time::Instant::now();
+    // Read before the photos, not beside them: read on a thread of its own while the photos
+    // were decoded and their faces found, it made the whole no faster (`tools/ab-bench`,
+    // `lps-head/photos-8`, 6 runs by turns: wall 1.07 / 1.15 s best / median against 1.07 /
+    // 1.10; the photos' stage 185 → 229 ms best, as the read's page faults and copies take the
+    // same cores) and the peak 171 → 183 MB.
     let predictor = landmark_model.map(read_model).transpose()?;
     let model_seconds = predictor.is_some().then(|| model_start.elapsed().as_secs_f64());
     let reference = read_reference(reference_path)?;
