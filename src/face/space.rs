@@ -763,7 +763,7 @@ pub struct PhotoFitOptions {
 /// against 0.83×). Still off.
 ///
 /// With perfect landmarks the gaps do pay. Handed the truth's own 68 points projected into
-/// the same photos (`photo_eval --expressions --projected-landmarks --seeds 2 --counts 3,8
+/// the same photos (the subjects' landmark vertices, with no occlusion test) (`photo_eval --expressions --projected-landmarks --seeds 2 --counts 3,8
 /// --methods "lips,landmarks only lips,landmarks only"` and `--methods default`), the whole
 /// path gives smile / neutral 1.09 / 1.07 and jaw / neutral 1.00 / 1.09 with the gaps, against
 /// 1.08 / 1.13 and 1.03 / 1.13 without (the jaw found at 0.25 / 0.27 against 0.19 / 0.20):
