@@ -763,13 +763,23 @@ pub struct PhotoFitOptions {
 /// against 0.83×). Still off.
 ///
 /// With perfect landmarks the gaps do pay. Handed the truth's own 68 points projected into
-/// the same photos (the subjects' landmark vertices, with no occlusion test) (`photo_eval --expressions --projected-landmarks --seeds 2 --counts 3,8
-/// --methods "lips,landmarks only lips,landmarks only"` and `--methods default`), the whole
+/// the same photos (the subjects' landmark vertices, with no occlusion test; `photo_eval
+/// --expressions --projected-landmarks --seeds 2 --counts 3,8 --methods "lips,landmarks only
+/// lips,landmarks only"` and `--methods default`), the whole
 /// path gives smile / neutral 1.09 / 1.07 and jaw / neutral 1.00 / 1.09 with the gaps, against
 /// 1.08 / 1.13 and 1.03 / 1.13 without (the jaw found at 0.25 / 0.27 against 0.19 / 0.20):
 /// within the 10% the face-space issue asks. From dlib's points it is not, so what stands
 /// between the expressive photos and that bound is the landmarker's reading of a mouth (the
-/// rendered mouths have no teeth; a real one may be read better or worse).
+/// rendered mouths had no teeth then).
+///
+/// With teeth in the rendered mouths (a band under each lip, `tools/photo_eval`'s subjects)
+/// dlib reads an open mouth better: with the gaps the landmark fit finds the open jaw at
+/// 0.30 / 0.32 of 0.35 (without them 0.24 / 0.24). The whole path gives smile / neutral
+/// 1.15 / 1.12 and jaw / neutral 1.01 / 1.15 with the gaps, 1.12 / 1.18 and 0.99 / 1.15
+/// without, neutral photos 0.71 / 0.61 of the mean face's error against 0.71 / 0.59
+/// (`photo_eval --expressions --expression-oracle --seeds 2 --counts 3,8`,
+/// `tools/results/expressions.md`): the open jaw found, the face from eight photos of it is
+/// no better. Still off.
 pub const LIP_WEIGHT: Real = 0.5;
 
 /// A photo's inner-lip gaps, `y` up, in its pixels ([`crate::structure::inner_lip_gaps`]).

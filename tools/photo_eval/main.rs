@@ -6,7 +6,7 @@
 //! Subjects ([`subjects`]): Lee Perry-Smith's textured head scan (`../shared/data/lps-head`,
 //! CC BY 3.0), with its two photo sets as given and more rendered here, and ICT-FaceKit
 //! identities (`../shared/data/ict-face`, MIT) wearing real skins projected from frontal
-//! photos, the inside of their mouths dark. Every subject gets a pool of rendered photos ([`photos::render_pool`]: perspective,
+//! photos, the inside of their mouths dark, with teeth. Every subject gets a pool of rendered photos ([`photos::render_pool`]: perspective,
 //! 0.4–2 m, varied light); sets of 2, 3, 4, 8 and 16 are drawn from it over several seeds, and
 //! two disjoint halves of 16 photos test self-consistency.
 //!
@@ -1351,7 +1351,7 @@ fn expressions(
     let page = format!(
         "# Expressions: the neutral identity from expressive photos\n\n\
          Made by `{}` (tools/photo_eval --expressions) in {:.0} s. {} ICT-FaceKit identities (as in photos.md: \
-         weights ~ N(0, 1) on the 60 identity modes, real skins, the inside of their mouths dark), each rendered neutral and with each expression \
+         weights ~ N(0, 1) on the 60 identity modes, real skins, the inside of their mouths dark, with teeth), each rendered neutral and with each expression \
          (ICT blendshapes: {}) in the same poses and light; sets of {:?} photos, {} seeds, the same photos of each \
          variant. Every reconstruction is scored against the **neutral** identity (inner-face error, as in photos.md), \
          divided by the unchanged mean face's error on it. ICT-FaceKit: Copyright (c) 2020 USC Institute for Creative \
@@ -2130,7 +2130,7 @@ fn main() -> Result<()> {
          Subjects: Lee Perry-Smith's textured head scan (`lps`; `../shared/data/lps-head`) with its two given photo sets, \
          and {} ICT-FaceKit identities (`ict-N`, weights ~ N(0, 1) on the 60 identity modes) wearing real skins projected \
          from frontal photos (the scan's own render and four faces of dlib's `bald_guys.jpg`), the inside of their mouths \
-         dark. Each subject has a pool of \
+         dark, with a band of teeth under each lip. Each subject has a pool of \
          {} photos rendered by `splineface::render::render_photo` (800 × 1000, perspective camera 0.4–2 m away with the face \
          22–45% of the width, yaw within ±60° for the scan and ±45° for the ICT masks, pitch ±15°, roll ±8°, a directional \
          light from the front hemisphere with soft shadows, ambient light, a sheen, gradient background, blur and sensor \

@@ -122,6 +122,18 @@ const MOUTH_TEXELS: u32 = 8;
 /// photos.
 const MOUTH_COLOUR: [u8; 3] = [52, 24, 24];
 
+/// The teeth, sRGB (ivory), in the block of [`MOUTH_TEXELS`] texels beside the mouth's.
+const TEETH_COLOUR: [u8; 3] = [222, 212, 192];
+
+/// The teeth's bands ([`Openings::close`]), mm: how far behind the inner edge of a lip each
+/// band's edge sits (and how far above the upper lip's edge, below the lower's), how far the
+/// upper and the lower band reach into the mouth at most, and the fractions of the lips' gap
+/// they take at most (the rest stays dark between them).
+const TEETH_SETBACK: Real = 2.5;
+const TEETH_TUCK: Real = 1.0;
+const TEETH_REACH: [Real; 2] = [10.0, 7.0];
+const TEETH_GAP_FRACTION: [Real; 2] = [0.4, 0.25];
+
 fn boundary_loops(mesh: &TriangleMesh) -> Vec<Vec<u32>> {
     use std::collections::HashMap;
     let mut count: HashMap<(u32, u32), usize> = HashMap::new();
@@ -183,7 +195,8 @@ impl Openings {
 
     /// The mesh with its openings closed: one centre vertex per opening (the loop's mean,
     /// moved back along `−z`), its texture coordinate the loop's mean; the mouth's fan takes
-    /// the skin's mouth texels ([`MOUTH_TEXELS`]) instead, all over.
+    /// the skin's mouth texels ([`MOUTH_TEXELS`]) instead, all over, and the mouth gets teeth
+    /// ([`teeth`]).
     fn close(&self, mesh: &TriangleMesh, depth_scale: Real, skin_side: u32) -> Result<TriangleMesh> {
         let texture = mesh.texture().context("no texture coordinates")?;
         let mut positions = mesh.positions().to_vec();
@@ -201,6 +214,9 @@ impl Openings {
         let mouth_uv = uvs.len() as u32;
         let corner = Real::from(MOUTH_TEXELS) / 2.0 / Real::from(skin_side);
         uvs.push(Point2::new(corner, 1.0 - corner));
+        // The centre of the teeth's texels, beside the mouth's.
+        let teeth_uv = uvs.len() as u32;
+        uvs.push(Point2::new(3.0 * corner, 1.0 - corner));
         for (lp, depth, mouth) in &self.loops {
             let n = lp.len() as Real;
             let centre = lp
@@ -226,6 +242,17 @@ impl Openings {
                     [uv_of[a as usize], uv_of[b as usize], cu]
                 });
             }
+            if *mouth {
+                let loop_points: Vec<Point3<Real>> = lp.iter().map(|&v| positions[v as usize]).collect();
+                for quad in teeth(&loop_points) {
+                    let first = positions.len() as u32;
+                    positions.extend(quad);
+                    for t in [[0, 1, 2], [0, 2, 3]] {
+                        triangles.push(t.map(|k| first + k));
+                        uv_triangles.push([teeth_uv; 3]);
+                    }
+                }
+            }
         }
         Ok(
             TriangleMesh::new(positions, triangles)?.with_texture(TextureCoordinates {
@@ -234,6 +261,88 @@ impl Openings {
             })?,
         )
     }
+}
+
+/// Teeth for a mouth whose inner lips run along `lips` (a closed loop, mm, `y` up, `z` to
+/// the camera): quads (corners in order) of an upper band hanging from the upper lip and a
+/// lower band rising from the lower one, each edge [`TEETH_SETBACK`] behind its lip's inner
+/// edge and [`TEETH_TUCK`] beyond it (so the lip hides it), each reaching into the mouth
+/// [`TEETH_GAP_FRACTION`] of the lips' gap at its place, [`TEETH_REACH`] at most. A closed
+/// mouth (no gap) shows none: the bands stay behind the lips. A rough likeness of a mouth in a
+/// photo (the upper teeth showing under the lip, the lower ones less), not of any anatomy.
+fn teeth(lips: &[Point3<Real>]) -> Vec<[Point3<Real>; 4]> {
+    let n = lips.len();
+    if n < 4 {
+        return Vec::new();
+    }
+    // The corners of the mouth: the loop's leftmost and rightmost points; the arc between them
+    // that lies higher is the upper lip's.
+    let by_x = |a: &usize, b: &usize| lips[*a].x.total_cmp(&lips[*b].x);
+    let (Some(left), Some(right)) = ((0..n).min_by(by_x), (0..n).max_by(by_x)) else {
+        return Vec::new();
+    };
+    let arc = |from: usize, to: usize| -> Vec<Point3<Real>> {
+        let mut out = vec![lips[from]];
+        let mut k = from;
+        while k != to {
+            k = (k + 1) % n;
+            out.push(lips[k]);
+        }
+        out
+    };
+    let (one, other) = (arc(left, right), arc(right, left));
+    let mean_y = |a: &[Point3<Real>]| a.iter().map(|p| p.y).sum::<Real>() / a.len() as Real;
+    let (upper, lower) = if mean_y(&one) >= mean_y(&other) {
+        (one, other)
+    } else {
+        (other, one)
+    };
+    // The height of an arc at `x` (linear between its points; its end's beyond them).
+    let height_at = |arc: &[Point3<Real>], x: Real| -> Real {
+        let mut best: Option<(Real, Real)> = None;
+        for w in arc.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let (lo, hi) = (a.x.min(b.x), a.x.max(b.x));
+            if (lo..=hi).contains(&x) {
+                let t = if hi > lo { (x - a.x) / (b.x - a.x) } else { 0.5 };
+                return a.y + t * (b.y - a.y);
+            }
+            let d = (x - lo).abs().min((x - hi).abs());
+            if best.is_none_or(|(bd, _)| d < bd) {
+                best = Some((
+                    d,
+                    if (x - a.x).abs() < (x - b.x).abs() {
+                        a.y
+                    } else {
+                        b.y
+                    },
+                ));
+            }
+        }
+        best.map_or(arc[0].y, |(_, y)| y)
+    };
+    let mut quads = Vec::new();
+    for (band, (edge, facing)) in [(&upper, &lower), (&lower, &upper)].into_iter().enumerate() {
+        // Into the mouth: down from the upper lip, up from the lower.
+        let inward = if band == 0 { -1.0 } else { 1.0 };
+        let strip: Vec<(Point3<Real>, Point3<Real>)> = edge
+            .iter()
+            .map(|p| {
+                let gap = (height_at(facing, p.x) - p.y).abs();
+                let reach = (TEETH_GAP_FRACTION[band] * gap).min(TEETH_REACH[band]);
+                let top = Point3::new(p.x, p.y - inward * TEETH_TUCK, p.z - TEETH_SETBACK);
+                let tip = Point3::new(p.x, p.y + inward * reach, p.z - TEETH_SETBACK);
+                (top, tip)
+            })
+            .collect();
+        for w in strip.windows(2) {
+            let ((a, a_tip), (b, b_tip)) = (w[0], w[1]);
+            if (a_tip - a).norm() + (b_tip - b).norm() > 2.0 * TEETH_TUCK + 0.2 {
+                quads.push([a, b, b_tip, a_tip]);
+            }
+        }
+    }
+    quads
 }
 
 /// 2D thin-plate interpolation of offsets at `sites` (regularised by `lambda`).
@@ -414,13 +523,19 @@ pub fn skin_from_photo(
             *p = mean;
         }
     }
-    // The inside of the mouth ([`Openings::close`]), in a corner no triangle covers.
+    // The inside of the mouth and the teeth ([`Openings::close`]), in a corner no triangle
+    // covers.
     for ty in 0..MOUTH_TEXELS {
-        for tx in 0..MOUTH_TEXELS {
+        for tx in 0..2 * MOUTH_TEXELS {
             if filled[(ty * size + tx) as usize] {
                 bail!("the skin's corner texels, kept for the inside of the mouth, are covered");
             }
-            image.put_pixel(tx, ty, image::Rgb(MOUTH_COLOUR));
+            let colour = if tx < MOUTH_TEXELS {
+                MOUTH_COLOUR
+            } else {
+                TEETH_COLOUR
+            };
+            image.put_pixel(tx, ty, image::Rgb(colour));
         }
     }
     Ok(Skin {
