@@ -224,22 +224,25 @@ impl Openings {
                 .map(|&v| positions[v as usize].coords)
                 .sum::<Vector3<Real>>()
                 / n;
-            let centre_uv = lp
-                .iter()
-                .map(|&v| uvs[uv_of[v as usize] as usize].coords)
-                .sum::<nalgebra::Vector2<Real>>()
-                / n;
             let c = positions.len() as u32;
             positions.push(Point3::from(centre - Vector3::z() * (*depth * depth_scale)));
-            let cu = uvs.len() as u32;
-            uvs.push(Point2::from(centre_uv));
+            // An eye's fan is textured by its loop, its centre by the loop's mean; the mouth's
+            // takes the mouth's texels all over.
+            let centre_uv = (!*mouth).then(|| {
+                let mean = lp
+                    .iter()
+                    .map(|&v| uvs[uv_of[v as usize] as usize].coords)
+                    .sum::<nalgebra::Vector2<Real>>()
+                    / n;
+                uvs.push(Point2::from(mean));
+                uvs.len() as u32 - 1
+            });
             for k in 0..lp.len() {
                 let (a, b) = (lp[k], lp[(k + 1) % lp.len()]);
                 triangles.push([a, b, c]);
-                uv_triangles.push(if *mouth {
-                    [mouth_uv; 3]
-                } else {
-                    [uv_of[a as usize], uv_of[b as usize], cu]
+                uv_triangles.push(match centre_uv {
+                    Some(cu) => [uv_of[a as usize], uv_of[b as usize], cu],
+                    None => [mouth_uv; 3],
                 });
             }
             if *mouth {
