@@ -104,13 +104,18 @@ pub struct Skin {
     pub image: image::RgbImage,
 }
 
-/// The ICT mesh's openings (eyes, mouth) closed by fans about a centre set back by `depth` cm,
-/// and the outer boundary left open: returns the closing triangles and their new vertices.
+/// The ICT mesh's openings (eyes, mouth) closed by fans about a centre set back (an eye's by
+/// [`EYE_DEPTH`], the mouth's by [`MOUTH_DEPTH`]), and the outer boundary left open.
 struct Openings {
-    /// Each opening: its boundary loop (vertex indices), how far back its centre sits (cm) and
-    /// whether it is the mouth.
-    loops: Vec<(Vec<u32>, Real, bool)>,
+    /// Each opening: its boundary loop (vertex indices) and whether it is the mouth.
+    loops: Vec<(Vec<u32>, bool)>,
 }
+
+/// How far back the centre of an eye's fan sits, cm.
+const EYE_DEPTH: Real = 0.5;
+
+/// How far back the centre of the mouth's fan sits, cm.
+const MOUTH_DEPTH: Real = 1.0;
 
 /// The side of the block of texels in a skin's top-left corner (outside the ICT mesh's
 /// texture chart) that holds the inside of the mouth.
@@ -186,8 +191,8 @@ impl Openings {
             .into_iter()
             .map(|l| {
                 let y = l.iter().map(|&v| neutral.positions()[v as usize].y).sum::<Real>() / l.len() as Real;
-                // Eyes (above the nose) sit 0.5 cm back, the mouth 1 cm.
-                if y > 0.0 { (l, 0.5, false) } else { (l, 1.0, true) }
+                // The eyes lie above the nose, the mouth below.
+                (l, y <= 0.0)
             })
             .collect();
         Openings { loops }
@@ -217,7 +222,8 @@ impl Openings {
         // The centre of the teeth's texels, beside the mouth's.
         let teeth_uv = uvs.len() as u32;
         uvs.push(Point2::new(3.0 * corner, 1.0 - corner));
-        for (lp, depth, mouth) in &self.loops {
+        for (lp, mouth) in &self.loops {
+            let depth = if *mouth { MOUTH_DEPTH } else { EYE_DEPTH };
             let n = lp.len() as Real;
             let centre = lp
                 .iter()
@@ -225,7 +231,7 @@ impl Openings {
                 .sum::<Vector3<Real>>()
                 / n;
             let c = positions.len() as u32;
-            positions.push(Point3::from(centre - Vector3::z() * (*depth * depth_scale)));
+            positions.push(Point3::from(centre - Vector3::z() * (depth * depth_scale)));
             // An eye's fan is textured by its loop, its centre by the loop's mean; the mouth's
             // takes the mouth's texels all over.
             let centre_uv = (!*mouth).then(|| {
@@ -300,47 +306,40 @@ fn teeth(lips: &[Point3<Real>]) -> Vec<[Point3<Real>; 4]> {
     } else {
         (other, one)
     };
-    // The height of an arc at `x` (linear between its points; its end's beyond them).
+    // The height of an arc at `x`, linear between its points. Both arcs run from one corner to
+    // the other, the loop's leftmost and rightmost points, so some segment spans every `x` of
+    // the loop (the first point's height answers any other `x`).
     let height_at = |arc: &[Point3<Real>], x: Real| -> Real {
-        let mut best: Option<(Real, Real)> = None;
-        for w in arc.windows(2) {
-            let (a, b) = (w[0], w[1]);
-            let (lo, hi) = (a.x.min(b.x), a.x.max(b.x));
-            if (lo..=hi).contains(&x) {
-                let t = if hi > lo { (x - a.x) / (b.x - a.x) } else { 0.5 };
-                return a.y + t * (b.y - a.y);
-            }
-            let d = (x - lo).abs().min((x - hi).abs());
-            if best.is_none_or(|(bd, _)| d < bd) {
-                best = Some((
-                    d,
-                    if (x - a.x).abs() < (x - b.x).abs() {
-                        a.y
-                    } else {
-                        b.y
-                    },
-                ));
-            }
-        }
-        best.map_or(arc[0].y, |(_, y)| y)
+        arc.windows(2)
+            .find_map(|w| {
+                let (a, b) = (w[0], w[1]);
+                let (lo, hi) = (a.x.min(b.x), a.x.max(b.x));
+                (lo..=hi).contains(&x).then(|| {
+                    let t = if hi > lo { (x - a.x) / (b.x - a.x) } else { 0.5 };
+                    a.y + t * (b.y - a.y)
+                })
+            })
+            .unwrap_or(arc[0].y)
     };
     let mut quads = Vec::new();
     for (band, (edge, facing)) in [(&upper, &lower), (&lower, &upper)].into_iter().enumerate() {
         // Into the mouth: down from the upper lip, up from the lower.
         let inward = if band == 0 { -1.0 } else { 1.0 };
-        let strip: Vec<(Point3<Real>, Point3<Real>)> = edge
+        // Each point's band edge (top), tip and reach into the mouth.
+        let strip: Vec<(Point3<Real>, Point3<Real>, Real)> = edge
             .iter()
             .map(|p| {
                 let gap = (height_at(facing, p.x) - p.y).abs();
                 let reach = (TEETH_GAP_FRACTION[band] * gap).min(TEETH_REACH[band]);
                 let top = Point3::new(p.x, p.y - inward * TEETH_TUCK, p.z - TEETH_SETBACK);
                 let tip = Point3::new(p.x, p.y + inward * reach, p.z - TEETH_SETBACK);
-                (top, tip)
+                (top, tip, reach)
             })
             .collect();
+        // A quad whose two reaches sum to 0.2 mm or less is left out (a closed mouth's).
         for w in strip.windows(2) {
-            let ((a, a_tip), (b, b_tip)) = (w[0], w[1]);
-            if (a_tip - a).norm() + (b_tip - b).norm() > 2.0 * TEETH_TUCK + 0.2 {
+            let ((a, a_tip, a_reach), (b, b_tip, b_reach)) = (w[0], w[1]);
+            if a_reach + b_reach > 0.2 {
                 quads.push([a, b, b_tip, a_tip]);
             }
         }
