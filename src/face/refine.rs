@@ -955,9 +955,10 @@ struct LevelImage {
     /// The crop's pixel `(c, r)` is the photo's pixel `origin + (c, r) / factor` (`y` down).
     origin: Vector2<Real>,
     factor: Real,
-    values: Vec<f32>,
-    gx: Vec<f32>,
-    gy: Vec<f32>,
+    /// Per crop pixel, row-major: the intensity and its central differences along `x` and
+    /// `y` (crop pixels), with a pad. Interleaved so that a bilinear lookup of all three
+    /// reads each of its four corners from one place ([`LevelImage::sample`]).
+    texels: Vec<[f32; 4]>,
 }
 
 impl LevelImage {
@@ -990,14 +991,17 @@ impl LevelImage {
             }
         };
         let (gx, gy) = crate::align::central_differences(&values, width, height);
+        let texels = values
+            .iter()
+            .zip(gx.iter().zip(&gy))
+            .map(|(&v, (&gx, &gy))| [v, gx, gy, 0.0])
+            .collect();
         LevelImage {
             width,
             height,
             origin,
             factor,
-            values,
-            gx,
-            gy,
+            texels,
         }
     }
 
@@ -1031,19 +1035,26 @@ impl LevelImage {
         let (x0, y0) = (x as usize, y as usize);
         let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
         let (fx, fy) = (x - x0 as Real, y - y0 as Real);
-        let at = |v: &[f32]| {
-            let w = self.width;
-            let top = Real::from(v[y0 * w + x0]) * (1.0 - fx) + Real::from(v[y0 * w + x1]) * fx;
-            let bottom = Real::from(v[y1 * w + x0]) * (1.0 - fx) + Real::from(v[y1 * w + x1]) * fx;
+        let w = self.width;
+        let corners = [
+            &self.texels[y0 * w + x0],
+            &self.texels[y0 * w + x1],
+            &self.texels[y1 * w + x0],
+            &self.texels[y1 * w + x1],
+        ];
+        // Channel `k` bilinearly: along `x` on the two rows, then along `y`.
+        let at = |k: usize| {
+            let top = Real::from(corners[0][k]) * (1.0 - fx) + Real::from(corners[1][k]) * fx;
+            let bottom = Real::from(corners[2][k]) * (1.0 - fx) + Real::from(corners[3][k]) * fx;
             top * (1.0 - fy) + bottom * fy
         };
         // d(crop)/d(photo, y up) = factor · diag(1, −1).
         let g = if inside {
-            Vector2::new(at(&self.gx) * self.factor, -at(&self.gy) * self.factor)
+            Vector2::new(at(1) * self.factor, -at(2) * self.factor)
         } else {
             Vector2::zeros()
         };
-        Some((at(&self.values), g))
+        Some((at(0), g))
     }
 }
 /// The sRGB transfer curve undone: an encoded intensity in `[0, 1]` to linear light.
@@ -2206,7 +2217,9 @@ impl Level<'_> {
     }
 
     /// Sample `s` seen by the photos with weights `visibility`, linearised (with derivatives
-    /// when `derivatives`).
+    /// when `derivatives`), into `out` (cleared first; the callers keep one buffer for many
+    /// samples rather than allocate one per sample).
+    #[allow(clippy::too_many_arguments)]
     fn seen(
         &self,
         state: &State,
@@ -2215,8 +2228,9 @@ impl Level<'_> {
         normalisation: &Normalisation,
         s: usize,
         derivatives: bool,
-    ) -> Vec<Seen> {
-        let mut out = Vec::new();
+        out: &mut Vec<Seen>,
+    ) {
+        out.clear();
         for (i, camera) in state.cameras.iter().enumerate() {
             let c = visibility[i][s];
             if c <= 0.0 {
@@ -2264,7 +2278,6 @@ impl Level<'_> {
                 d_photo,
             });
         }
-        out
     }
 
     /// Per sample: the weighted sum of squares of the photos' normalised intensities about
@@ -2292,10 +2305,10 @@ impl Level<'_> {
         let normalisation = self.normalisers(state, &placed, visibility, false);
         (0..self.samples.len())
             .into_par_iter()
-            .map(|s| {
-                let seen = self.seen(state, &placed, visibility, &normalisation, s, false);
-                let (total, mean) = agreement(&seen)?;
-                Some(f(&seen, total, mean))
+            .map_init(Vec::new, |seen, s| {
+                self.seen(state, &placed, visibility, &normalisation, s, false, seen);
+                let (total, mean) = agreement(seen)?;
+                Some(f(seen, total, mean))
             })
             .collect()
     }
@@ -2529,8 +2542,9 @@ impl Level<'_> {
         let parts: Vec<(Equations, Vec<Real>)> = in_fixed_chunks(self.samples.len(), |samples| {
             let mut equations = zeros();
             let mut costs = Vec::with_capacity(samples.len());
+            let mut seen = Vec::new();
             for s in samples {
-                let seen = self.seen(state, &placed, visibility, &normalisation, s, true);
+                self.seen(state, &placed, visibility, &normalisation, s, true, &mut seen);
                 if let Some((total, mean)) = agreement(&seen) {
                     costs.push(sample_cost(&seen, mean, c));
                     let basis: &[(usize, Real)] = if state.field.is_empty() {
