@@ -12,10 +12,13 @@ use crate::Real;
 /// the queries back.
 const LEAF: usize = 4;
 
+/// A node of the hierarchy: 32 bytes, two to a cache line. Its box is stored in `f32`, rounded
+/// outward ([`outward`]), so it still holds its triangles: it only prunes the search (the
+/// triangles themselves are `f64`), and the answers are the same as with exact boxes.
 #[derive(Debug, Clone, Copy)]
 struct Node {
-    lo: [Real; 3],
-    hi: [Real; 3],
+    lo: [f32; 3],
+    hi: [f32; 3],
     /// Leaf: first triangle (in `order`); inner: index of the right child (the left child is
     /// the next node).
     start: u32,
@@ -334,10 +337,24 @@ fn box_distance_squared(node: &Node, p: &Point3<Real>) -> Real {
     let mut d = 0.0;
     for c in 0..3 {
         // At most one of the two is positive; no branch to mispredict.
-        let excess = (node.lo[c] - p[c]).max(0.0) + (p[c] - node.hi[c]).max(0.0);
+        let excess = (Real::from(node.lo[c]) - p[c]).max(0.0) + (p[c] - Real::from(node.hi[c])).max(0.0);
         d += excess * excess;
     }
     d
+}
+
+/// `x` as an `f32` on the side of it that keeps a box whole: the nearest `f32` at or above `x`
+/// when `up`, at or below it otherwise (beyond `f32`'s range, its largest finite value on the
+/// inner side, or the infinity on the outer one).
+fn outward(x: Real, up: bool) -> f32 {
+    let y = x as f32;
+    if up && Real::from(y) < x {
+        y.next_up()
+    } else if !up && Real::from(y) > x {
+        y.next_down()
+    } else {
+        y
+    }
 }
 
 /// Builds the subtree over `order[..]` (whose first entry is triangle number `offset` in leaf
@@ -365,8 +382,8 @@ fn build(
     }
     let index = nodes.len() as u32;
     nodes.push(Node {
-        lo,
-        hi,
+        lo: lo.map(|x| outward(x, false)),
+        hi: hi.map(|x| outward(x, true)),
         start: offset as u32,
         count: order.len() as u32,
     });
@@ -421,5 +438,43 @@ mod tests {
         sorted.sort_unstable();
         assert_eq!(sorted, (0..1000).collect::<Vec<u32>>());
         assert!(xs.windows(2).all(|w| w[0] <= w[1]));
+    }
+
+    /// Boxes rounded to `f32` still hold every coordinate: each bound is the nearest `f32` on
+    /// its outer side (or the value itself when it is one), beyond `f32`'s range too.
+    #[test]
+    fn outward_rounding_keeps_the_box_whole() {
+        let mut x = 0.1f64;
+        let mut values = vec![
+            0.0,
+            -0.0,
+            1.0,
+            -3.5,
+            1e39,
+            -1e39,
+            1e-50,
+            -1e-50,
+            f64::from(f32::MAX),
+        ];
+        for _ in 0..2000 {
+            x = (x * 3.7 + 0.123).fract();
+            values.push((x - 0.5) * 10f64.powi((x * 12.0) as i32 - 6));
+        }
+        for &v in &values {
+            let (down, up) = (outward(v, false), outward(v, true));
+            assert!(f64::from(down) <= v && v <= f64::from(up), "{v}: {down}, {up}");
+            if down.is_finite() && f64::from(down) < v {
+                assert!(
+                    f64::from(down.next_up()) > v,
+                    "{v}: {down} is not the nearest below"
+                );
+            }
+            if up.is_finite() && f64::from(up) > v {
+                assert!(
+                    f64::from(up.next_down()) < v,
+                    "{v}: {up} is not the nearest above"
+                );
+            }
+        }
     }
 }
