@@ -38,7 +38,9 @@ pub struct ClosestPoints {
     /// Triangle corners in leaf order.
     corners: Vec<[Point3<Real>; 3]>,
     /// Each triangle's unit normal (zero if degenerate), in leaf order: the distance to its
-    /// plane bounds the distance to it from below.
+    /// plane bounds the distance to it from below. (Kept with the corners, one array of
+    /// triangles, it measured no faster: 1.01–1.09 against 1.09–1.19 M near-surface queries a
+    /// second, three runs each by turns.)
     normals: Vec<Vector3<Real>>,
     /// The mesh's triangle index of each entry of `corners`.
     order: Vec<u32>,
