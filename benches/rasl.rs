@@ -62,6 +62,12 @@ fn rasl(c: &mut Criterion) {
     group.bench_function("35 photos, whole alignment", |b| {
         b.iter(|| black_box(rasl_frontal(&batch, &options).unwrap()))
     });
+    // A batch of `reconstruct`'s usual size (7 photos, 14 columns), whose inner loop is more
+    // about passes over memory than about products.
+    let small = &batch[..7];
+    group.bench_function("7 photos, whole alignment", |b| {
+        b.iter(|| black_box(rasl_frontal(small, &options).unwrap()))
+    });
     let mut rng = Lcg(3);
     let t = DMatrix::<f32>::from_fn(12_000, 70, |_, _| rng.gaussian() as f32);
     group.bench_function("singular-value thresholding 12000×70, Gram", |b| {
