@@ -427,17 +427,20 @@ impl Column {
         let (px0, py0) = (x0.saturating_sub(1), y0.saturating_sub(1));
         let (px1, py1) = ((x1 + 1).min(w - 1), (y1 + 1).min(h - 1));
         let pw = px1 - px0 + 1;
-        let padded: Vec<f32> = (py0..=py1)
-            .flat_map(|y| (px0..=px1).map(move |x| at(x, y)))
-            .collect();
+        // Sized at once (collected from a flattening iterator, they grew by doubling, a copy
+        // and fresh pages each time).
+        let mut padded = Vec::with_capacity(pw * (py1 - py0 + 1));
+        for y in py0..=py1 {
+            padded.extend((px0..=px1).map(|x| at(x, y)));
+        }
         let (pgx, pgy) = super::central_differences(&padded, pw, py1 - py0 + 1);
         let inner = |v: &[f32]| -> Vec<f32> {
-            (y0..=y1)
-                .flat_map(|y| {
-                    let row = (y - py0) * pw;
-                    v[row + x0 - px0..=row + x1 - px0].iter().copied()
-                })
-                .collect()
+            let mut part = Vec::with_capacity((x1 - x0 + 1) * (y1 - y0 + 1));
+            for y in y0..=y1 {
+                let row = (y - py0) * pw;
+                part.extend_from_slice(&v[row + x0 - px0..=row + x1 - px0]);
+            }
+            part
         };
         let (values, gx, gy) = (inner(&padded), inner(&pgx), inner(&pgy));
         Column {
