@@ -949,6 +949,12 @@ impl InnerContext<'_> {
     /// `JΔτ` for the new `steps` into `dt`, the residual `Z = D + JΔτ − A − E`, and the dual
     /// update `Y += μZ`, in one pass; returns `‖Z‖²`, added up pixel by pixel, column by
     /// column, in `f64` (the order that decides when the inner loop stops).
+    ///
+    /// Pixel by pixel, each column block reads its seven coefficients again. Measured and
+    /// dropped: each chunk taken column block by column block, as [`InnerContext::step_sums`]
+    /// does, reading the coefficients once a block (the same bits; 4.5% fewer instructions
+    /// for 7 synthetic photos' alignment, but 0.99–1.05 of the time on one thread, four rounds
+    /// by turns: the chunk's arrays are then swept once a block instead of once).
     fn dual_step(
         &self,
         steps: &[nalgebra::Vector6<Real>],
