@@ -349,6 +349,16 @@ pub struct RefineOptions {
     /// a smile part of the way (0.23 to 0.44 on one subject's eight photos) and an open jaw
     /// hardly at all.
     ///
+    /// It is the size of the expression's own blendshapes that is missing, not the small
+    /// weights the fit spreads over the other 50 (`tools/results/expressions-modes.md`;
+    /// expressive over neutral error, smile and jaw open, 3 / 8 photos): refined with only
+    /// the expression's own blendshapes set to the truth and the others left at the fit's,
+    /// 0.99 / 1.03 and 0.99 / 1.06, near the whole truth's 0.95 / 0.97 and 0.97 / 1.06; with
+    /// the fit's weights on its own blendshapes and the others zeroed, 1.08 / 1.19 and
+    /// 1.03 / 1.18, near the fit's own 1.09 / 1.23 and 1.04 / 1.16. Zeroing every expression
+    /// of the neutral photos moves their ratio to the mean face from 0.72 / 0.54 to
+    /// 0.70 / 0.53.
+    ///
     /// Two other answers to the half-found expressions were measured and dropped (temporary
     /// switches, `photo_eval --expressions --seeds 2 --counts 3,8 --methods default`; neutral,
     /// smile, jaw open, 3 / 8 photos; then smile / neutral and jaw / neutral):

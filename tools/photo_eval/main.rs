@@ -1479,12 +1479,17 @@ fn scored_member(
 }
 
 /// `--expression-oracle`'s figures for one set: the landmark fit, the default refinement of
-/// it, the same refinement with every photo's expression set to the truth, and the mean
+/// it, the same refinement with every photo's expression set to the truth (and with only the
+/// expression's own blendshapes set to it, or only them kept at the fit's), and the mean
 /// weight the landmark fit gave the true expression's modes (`None` for neutral photos).
 struct Oracle {
     landmark_fit: Real,
     refined: Real,
     refined_true_expression: Real,
+    /// Refined with the expression's own blendshapes at the truth, the others at the fit's.
+    refined_true_modes: Real,
+    /// Refined with the fit's weights on the expression's own blendshapes, the others zero.
+    refined_found_modes_only: Real,
     found: Option<Real>,
 }
 
@@ -1496,12 +1501,14 @@ fn oracle_table(variants: &[&str], counts: &[usize], oracles: &[Vec<Vec<Oracle>>
     let mut out = String::from(
         "\n## The expression the landmark fit finds, and the refinement given the true one (`--expression-oracle`)\n\n\
          The first method's sets, refined by `FaceSpace::refine_photos` with the default options from the landmark \
-         fit (the pipeline without the refinement) with the expressions that fit found, and again with every \
-         photo's expression set to the truth. Mean ratio to the mean face; in brackets, the mean over sets of the \
+         fit (the pipeline without the refinement) with the expressions that fit found; again with every \
+         photo's expression set to the truth; with only the expression's own blendshapes set to the truth (the \
+         others at the fit's); and with the fit's weights on the expression's own blendshapes and the others \
+         zero (for neutral photos: every expression zero). Mean ratio to the mean face; in brackets, the mean over sets of the \
          error from expressive photos over the error from the neutral ones; the mean weight the landmark fit gave \
          the expression's blendshapes (the truth in brackets).\n\n\
-         | photos of | photos | landmark fit | refined | refined, true expression | expression found |\n\
-         |---|---|---|---|---|---|\n",
+         | photos of | photos | landmark fit | refined | refined, true expression | its blendshapes true, the others the fit's | the fit's on its blendshapes, the others zero | expression found |\n\
+         |---|---|---|---|---|---|---|---|\n",
     );
     for (v, variant) in variants.iter().enumerate() {
         for (c, count) in counts.iter().enumerate() {
@@ -1525,19 +1532,22 @@ fn oracle_table(variants: &[&str], counts: &[usize], oracles: &[Vec<Vec<Oracle>>
             };
             writeln!(
                 out,
-                "| {variant} | {count} | {} | {} | {} | {found} |",
+                "| {variant} | {count} | {} | {} | {} | {} | {} | {found} |",
                 paired(|o| o.landmark_fit),
                 paired(|o| o.refined),
                 paired(|o| o.refined_true_expression),
+                paired(|o| o.refined_true_modes),
+                paired(|o| o.refined_found_modes_only),
             )?;
         }
     }
     Ok(out)
 }
 
-/// The landmark fit of `set` refined twice: with the expressions the fit found and with the
-/// true ones (`truth`, blendshape weights by name; empty for neutral photos). `None` when the
-/// pipeline fails on the set.
+/// The landmark fit of `set` refined four times: with the expressions the fit found, with the
+/// true ones (`truth`, blendshape weights by name; empty for neutral photos), with the truth's
+/// own blendshapes set to it and the others the fit's, and with the fit's weights on the
+/// truth's blendshapes only. `None` when the pipeline fails on the set.
 fn expression_oracle(
     set: &Set<'_>,
     subject: &Subject,
@@ -1569,9 +1579,43 @@ fn expression_oracle(
         expressions: fit.expressions.iter().map(|_| true_weights.clone()).collect(),
         ..fit.clone()
     };
+    let is_true_mode: Vec<bool> = fit
+        .expression_names
+        .iter()
+        .map(|n| truth.iter().any(|t| t.0 == n))
+        .collect();
+    let true_modes = PhotoSpaceFit {
+        expressions: fit
+            .expressions
+            .iter()
+            .map(|e| {
+                e.iter()
+                    .zip(&is_true_mode)
+                    .zip(&true_weights)
+                    .map(|((&w, &own), &t)| if own { t } else { w })
+                    .collect()
+            })
+            .collect(),
+        ..fit.clone()
+    };
+    let found_modes_only = PhotoSpaceFit {
+        expressions: fit
+            .expressions
+            .iter()
+            .map(|e| {
+                e.iter()
+                    .zip(&is_true_mode)
+                    .map(|(&w, &own)| if own { w } else { 0.0 })
+                    .collect()
+            })
+            .collect(),
+        ..fit.clone()
+    };
     let options = RefineOptions::default();
     let refined = space.refine_photos(reference, fit, &views, &weights, &options)?;
     let oracle = space.refine_photos(reference, &with_truth, &views, &weights, &options)?;
+    let true_modes = space.refine_photos(reference, &true_modes, &views, &weights, &options)?;
+    let found_modes_only = space.refine_photos(reference, &found_modes_only, &views, &weights, &options)?;
     let scored = |w: &[Real], displacement: &[nalgebra::Vector3<Real>]| {
         scored_member(reference, &landmark_only, subject, baseline, w, displacement)
     };
@@ -1580,6 +1624,8 @@ fn expression_oracle(
         landmark_fit: scored(&fit.weights, &[])?,
         refined: scored(&refined.weights, &refined.displacement)?,
         refined_true_expression: scored(&oracle.weights, &oracle.displacement)?,
+        refined_true_modes: scored(&true_modes.weights, &true_modes.displacement)?,
+        refined_found_modes_only: scored(&found_modes_only.weights, &found_modes_only.displacement)?,
         found,
     }))
 }
