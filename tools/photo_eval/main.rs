@@ -1575,42 +1575,23 @@ fn expression_oracle(
         .iter()
         .map(|n| truth.iter().find(|t| t.0 == n).map_or(0.0, |t| t.1))
         .collect();
-    let with_truth = PhotoSpaceFit {
-        expressions: fit.expressions.iter().map(|_| true_weights.clone()).collect(),
-        ..fit.clone()
-    };
     let is_true_mode: Vec<bool> = fit
         .expression_names
         .iter()
         .map(|n| truth.iter().any(|t| t.0 == n))
         .collect();
-    let true_modes = PhotoSpaceFit {
+    // The fit with each photo's weight `w` on blendshape `l` replaced by `weight(l, w)`.
+    let with_expressions = |weight: &dyn Fn(usize, Real) -> Real| PhotoSpaceFit {
         expressions: fit
             .expressions
             .iter()
-            .map(|e| {
-                e.iter()
-                    .zip(&is_true_mode)
-                    .zip(&true_weights)
-                    .map(|((&w, &own), &t)| if own { t } else { w })
-                    .collect()
-            })
+            .map(|e| e.iter().enumerate().map(|(l, &w)| weight(l, w)).collect())
             .collect(),
         ..fit.clone()
     };
-    let found_modes_only = PhotoSpaceFit {
-        expressions: fit
-            .expressions
-            .iter()
-            .map(|e| {
-                e.iter()
-                    .zip(&is_true_mode)
-                    .map(|(&w, &own)| if own { w } else { 0.0 })
-                    .collect()
-            })
-            .collect(),
-        ..fit.clone()
-    };
+    let with_truth = with_expressions(&|l, _| true_weights[l]);
+    let true_modes = with_expressions(&|l, w| if is_true_mode[l] { true_weights[l] } else { w });
+    let found_modes_only = with_expressions(&|l, w| if is_true_mode[l] { w } else { 0.0 });
     let options = RefineOptions::default();
     let refined = space.refine_photos(reference, fit, &views, &weights, &options)?;
     let oracle = space.refine_photos(reference, &with_truth, &views, &weights, &options)?;
