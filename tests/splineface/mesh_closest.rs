@@ -111,3 +111,36 @@ fn closest_points_agree_with_brute_force_and_parry() {
         assert!((Real::from(theirs) - brute).abs() < 1e-4 * (1.0 + brute));
     }
 }
+
+/// Meshes of one to twelve triangles (a hierarchy of one leaf, of a root and two leaves, and a
+/// little deeper: the query's stack at its smallest sizes) answer as brute force does, with
+/// and without the previous query's hint.
+#[test]
+fn small_meshes_answer_as_brute_force() {
+    let mut rng = Lcg(5);
+    for n in 1..=12 {
+        let positions: Vec<Point3<Real>> = (0..3 * n)
+            .map(|_| rng.point_in([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]))
+            .collect();
+        let triangles: Vec<[u32; 3]> = (0..n as u32).map(|k| [3 * k, 3 * k + 1, 3 * k + 2]).collect();
+        let mesh = TriangleMesh::new(positions, triangles).unwrap();
+        let index = ClosestPoints::new(&mesh);
+        let queries: Vec<Point3<Real>> = (0..200)
+            .map(|_| rng.point_in([-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]))
+            .collect();
+        let many = index.closest_many(&queries);
+        for (q, batch) in queries.iter().zip(&many) {
+            let brute = (0..n)
+                .map(|k| {
+                    let [a, b, c] = mesh.triangle(k);
+                    (closest_on_triangle(q, &a, &b, &c) - q).norm()
+                })
+                .fold(Real::INFINITY, Real::min);
+            assert!(
+                (index.closest(q).distance - brute).abs() < 1e-12,
+                "{n} triangles, {q}"
+            );
+            assert!((batch.distance - brute).abs() < 1e-12, "{n} triangles, {q}");
+        }
+    }
+}
