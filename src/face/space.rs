@@ -843,6 +843,25 @@ pub type LipGaps = [Vector2<Real>; 3];
 ///   otherwise unchanged) they come out at 0.19 / 0.20 and 0.44 / 0.48: the open jaw's
 ///   shortfall is the fit's, not the landmarker's (a per-expression gain of the landmarker
 ///   would not find it), while dlib reads about 0.8 of the smile that the points show.
+/// * The rate's shrinkage was measured and kept. Fitted again without the rate, the
+///   expressions it picked (a "relaxed lasso": the rate chooses which weights move, a second
+///   Levenberg–Marquardt run sizes them without it, the others held) come out larger, but the
+///   identity hardly gains and the real scan loses (a temporary switch; `photo_eval
+///   --expressions --methods default --seeds 2 --counts 3,8`: neutral, smile, jaw open, 3 / 8
+///   photos, then expressive over neutral error and the weight found; `photo_eval
+///   --ict-subjects 0 --baseline tools/results/photos.md`: the scan's 15 sets and
+///   `photos-8`):
+///
+///   | second fit | neutral | smile | jaw open | smile / neutral | jaw / neutral | smile, jaw found, 8 photos | the scan | `photos-8` |
+///   |---|---|---|---|---|---|---|---|---|
+///   | **none** | 0.71 / 0.59 | 0.76 / 0.69 | 0.69 / 0.68 | 1.12 / 1.18 | 0.99 / 1.15 | 0.40, 0.24 | 0.834 | 0.83 |
+///   | every weight above zero, each photo's | 0.71 / 0.59 | 0.79 / 0.67 | 0.69 / 0.68 | 1.14 / 1.15 | 0.99 / 1.15 | 0.48, 0.25 | | |
+///   | the expressions whose mean reaches 0.05 | 0.70 / 0.59 | 0.76 / 0.64 | 0.69 / 0.67 | 1.11 / 1.11 | 1.00 / 1.14 | 0.49, 0.25 | 0.863 | 0.93 |
+///
+///   An open jaw stays at a quarter without the rate too: what holds it back is the identity
+///   modes that mimic it, not the rate. On the scan the second fit sizes up the expressions
+///   the fit finds where there are none (its sneer), and five of its 15 sets end more than
+///   2% worse than the landmark fit alone.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ExpressionPrior {
     /// `τ`, each photo's deviation from the shared expression.
