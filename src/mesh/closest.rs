@@ -213,13 +213,15 @@ impl ClosestPoints {
             triangle: 0,
         };
         let mut best_squared = Real::INFINITY;
-        let mut best_entry = 0;
+        // `None` until a triangle is taken (a query that is not finite and has no hint takes
+        // none, and is answered by triangle 0 at an infinite distance, as before).
+        let mut best_entry = None;
         if let Some(k) = hint.filter(|&k| k < self.corners.len()) {
             let [a, b, c] = &self.corners[k];
             let q = closest_on_triangle(p, a, b, c);
             best_squared = (q - p).norm_squared();
             best.point = q;
-            best_entry = k;
+            best_entry = Some(k);
         }
         stack[0] = (0, box_distance_squared(&self.nodes[0], p));
         let mut top = 1;
@@ -242,7 +244,7 @@ impl ClosestPoints {
                     if d < best_squared {
                         best_squared = d;
                         best.point = q;
-                        best_entry = k;
+                        best_entry = Some(k);
                     }
                 }
                 continue;
@@ -261,8 +263,8 @@ impl ClosestPoints {
             top += 2;
         }
         best.distance = best_squared.sqrt();
-        best.triangle = self.order[best_entry] as usize;
-        (best, best_entry)
+        best.triangle = best_entry.map_or(0, |k| self.order[k] as usize);
+        (best, best_entry.unwrap_or(0))
     }
 }
 
