@@ -192,7 +192,7 @@ impl ClosestPoints {
 
     /// The closest point to `p`, and the entry of `corners` of its triangle, searched from the
     /// triangle at entry `hint`: the previous query's, by its place in leaf order (looked up
-    /// from the mesh's index it missed the cache, 8% of a query's time).
+    /// from the mesh's index it missed the cache: 8% of the search's own profile samples).
     ///
     /// `stack` is [`ClosestPoints::stack`]'s; its top is a local (pushed onto a `Vec`, each
     /// push and pop wrote the length back to memory). The two changes gave the same answers
