@@ -1036,6 +1036,14 @@ impl InnerContext<'_> {
     }
 }
 
+/// `(x, y)` of each of a window's `d` pixels as [`InnerContext::pixels`] holds them (pixel
+/// `j = x·height + y`).
+fn window_pixels(d: usize, height: usize) -> Vec<[f32; 2]> {
+    (0..d)
+        .map(|j| [(j / height) as f32, (j % height) as f32])
+        .collect()
+}
+
 /// `values` (`N` rows of `n`, one after another) as its `N` rows.
 fn rows<const N: usize>(values: &[f32], n: usize) -> [&[f32]; N] {
     std::array::from_fn(|i| &values[i * n..(i + 1) * n])
@@ -1085,9 +1093,7 @@ fn inner_loop(
             }
         });
     let inverse_norm: Vec<f32> = prepared.iter().map(|p| (1.0 / p.norm) as f32).collect();
-    let pixels: Vec<[f32; 2]> = (0..d)
-        .map(|j| [(j / height) as f32, (j % height) as f32])
-        .collect();
+    let pixels = window_pixels(d, height);
     let context = InnerContext {
         dm,
         gx: &gx,
@@ -1097,8 +1103,12 @@ fn inner_loop(
         pixels: &pixels,
         n,
     };
-    let mut scratch = vec![0.0f32; d * n];
-    let (_, two_norm) = svt_pixel_major(dm, n, Real::INFINITY, &mut scratch);
+    // ‖D‖₂ from D's Gram matrix alone (nothing of D is kept at an infinite threshold).
+    let grams: Vec<DMatrix<f32>> = dm
+        .par_chunks(PRODUCT_CHUNK * n)
+        .map(|chunk| chunk_gram(chunk, n))
+        .collect();
+    let two_norm = Thresholded::new(grams, n, Real::INFINITY).largest;
     let inf_norm = dm.iter().fold(0.0f32, |m, v| m.max(v.abs())) as Real / lambda;
     let dual = two_norm.max(inf_norm);
     let mut y: Vec<f32> = dm.iter().map(|v| v / dual as f32).collect();
@@ -1112,7 +1122,7 @@ fn inner_loop(
     let mut e = vec![0.0f32; d * n];
     let mut a = vec![0.0f32; d * n];
     let mut dt = vec![0.0f32; d * n];
-    let mut t = scratch;
+    let mut t = vec![0.0f32; d * n];
     let mut steps = vec![nalgebra::Vector6::<Real>::zeros(); n];
     let mut nuclear = 0.0;
     let mut iterations = 0;
@@ -1291,9 +1301,7 @@ mod tests {
                 })
                 .collect();
             let inverse_norm = values(&mut rng, n);
-            let pixels: Vec<[f32; 2]> = (0..d)
-                .map(|j| [(j / height) as f32, (j % height) as f32])
-                .collect();
+            let pixels = window_pixels(d, height);
             let context = InnerContext {
                 dm: &dm,
                 gx: &gx,
