@@ -1570,15 +1570,11 @@ fn expression_oracle(
     };
     let fit = fitted.fit()?;
     let views = fitted.views(&inputs);
-    let true_weights: Vec<Real> = fit
+    // Each blendshape's true weight, `None` for those the truth does not name.
+    let truth_of: Vec<Option<Real>> = fit
         .expression_names
         .iter()
-        .map(|n| truth.iter().find(|t| t.0 == n).map_or(0.0, |t| t.1))
-        .collect();
-    let is_true_mode: Vec<bool> = fit
-        .expression_names
-        .iter()
-        .map(|n| truth.iter().any(|t| t.0 == n))
+        .map(|n| truth.iter().find(|t| t.0 == n).map(|t| t.1))
         .collect();
     // The fit with each photo's weight `w` on blendshape `l` replaced by `weight(l, w)`.
     let with_expressions = |weight: &dyn Fn(usize, Real) -> Real| PhotoSpaceFit {
@@ -1589,9 +1585,9 @@ fn expression_oracle(
             .collect(),
         ..fit.clone()
     };
-    let with_truth = with_expressions(&|l, _| true_weights[l]);
-    let true_modes = with_expressions(&|l, w| if is_true_mode[l] { true_weights[l] } else { w });
-    let found_modes_only = with_expressions(&|l, w| if is_true_mode[l] { w } else { 0.0 });
+    let with_truth = with_expressions(&|l, _| truth_of[l].unwrap_or(0.0));
+    let true_modes = with_expressions(&|l, w| truth_of[l].unwrap_or(w));
+    let found_modes_only = with_expressions(&|l, w| truth_of[l].map_or(0.0, |_| w));
     let options = RefineOptions::default();
     let refined = space.refine_photos(reference, fit, &views, &weights, &options)?;
     let oracle = space.refine_photos(reference, &with_truth, &views, &weights, &options)?;
